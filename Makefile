@@ -1,0 +1,39 @@
+# by_your_command: `make demo` runs the offline demo, `make test` runs every test.
+# Both bootstrap the checkout first (system packages, .venv with ROS 2 Jazzy, colcon build).
+SHELL := /bin/bash
+RUN := scripts/run.sh
+
+.PHONY: all bootstrap demo test unit lint format bench clean distclean
+
+all: test
+
+bootstrap:
+	@scripts/bootstrap.sh
+
+demo: bootstrap
+	@$(RUN) byc demo
+
+test: bootstrap lint
+	@scripts/run_tests.sh
+
+unit: bootstrap
+	@scripts/run_tests.sh -m unit
+
+lint: bootstrap
+	@$(RUN) ruff check .
+	@$(RUN) ruff format --check .
+	@$(RUN) mypy
+
+format: bootstrap
+	@$(RUN) ruff check --fix .
+	@$(RUN) ruff format .
+
+bench: bootstrap
+	@$(RUN) python bench/run_all.py
+
+clean:
+	rm -rf build install log .pytest_cache .mypy_cache .ruff_cache .hypothesis
+	find . -name __pycache__ -type d -prune -not -path './.venv/*' -exec rm -rf {} +
+
+distclean: clean
+	rm -rf .venv

@@ -1,0 +1,32 @@
+"""Start, spin and stop a node the same way everywhere (ros2 run, byc, tests)."""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Callable, Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.node import Node
+
+
+def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None, threads: int = 1) -> None:
+    """Create the node, spin until SIGINT/SIGTERM, then tear everything down.
+
+    SIGTERM is turned into a normal shutdown so a harness's `terminate()` ends the
+    process promptly and node destructors (flushing files, closing devices) still run.
+    """
+    rclpy.init(args=list(args) if args is not None else None)
+    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+    node = None
+    try:
+        node = make_node()
+        executor = SingleThreadedExecutor() if threads <= 1 else MultiThreadedExecutor(num_threads=threads)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,32 @@
+"""ament_python package: executables go to lib/by_your_command so `ros2 run` finds them."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "by_your_command"
+
+# One line per executable: `ros2 run by_your_command <name>` and install/lib/by_your_command/<name>.
+EXECUTABLES = {
+    "byc": "by_your_command.cli.byc:main",
+}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="by_your_command maintainers",
+    maintainer_email="maintainers@by-your-command.invalid",
+    description="Voice and vision interaction for ROS 2 robots with realtime LLM agents",
+    license="Apache-2.0",
+    entry_points={"console_scripts": [f"{name} = {target}" for name, target in EXECUTABLES.items()]},
+)

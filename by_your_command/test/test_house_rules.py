@@ -1,0 +1,110 @@
+"""Rules that keep the package usable without ROS: agents must run where rclpy does not exist."""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from byc_testing import INSTALL_LIB, REPO_ROOT
+
+PACKAGE_DIR = REPO_ROOT / "by_your_command" / "by_your_command"
+# Only these sub-packages may talk to ROS (DESIGN.md §2).
+ROS_ALLOWED = {"nodes", "ros"}
+ROS_ONLY_MODULES = (
+    "rclpy",
+    "rcl_interfaces",
+    "builtin_interfaces",
+    "std_msgs",
+    "sensor_msgs",
+    "geometry_msgs",
+    "diagnostic_msgs",
+    "by_your_command_msgs",
+    "ament_index_python",
+)
+
+
+def core_modules() -> list[Path]:
+    return [
+        path
+        for path in sorted(PACKAGE_DIR.rglob("*.py"))
+        if path.relative_to(PACKAGE_DIR).parts[0] not in ROS_ALLOWED
+    ]
+
+
+def ros_imports(path: Path, root: Path = REPO_ROOT) -> list[str]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names = [node.module]
+        found += [
+            f"{path.relative_to(root)}:{node.lineno} imports {name}"
+            for name in names
+            if name.split(".")[0] in ROS_ONLY_MODULES
+        ]
+    return found
+
+
+@pytest.mark.unit
+def test_ros_is_imported_only_in_nodes() -> None:
+    offences = [line for path in core_modules() for line in ros_imports(path)]
+    assert not offences, "ROS imported outside nodes/ (agents must run without ROS):\n" + "\n".join(offences)
+
+
+@pytest.mark.unit
+def test_core_imports_with_ros_absent() -> None:
+    """Import every core module in a Python where ROS packages cannot be imported at all."""
+    modules = [
+        ".".join(path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts).removesuffix(".__init__")
+        for path in core_modules()
+    ]
+    blocker = (
+        "import sys, importlib\n"
+        f"blocked = {ROS_ONLY_MODULES!r}\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in blocked:\n"
+        "            raise ImportError(f'{name} is not available without ROS')\n"
+        "sys.meta_path.insert(0, Block())\n"
+        f"for module in {modules!r}:\n"
+        "    importlib.import_module(module)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(PACKAGE_DIR.parent)}
+    result = subprocess.run([sys.executable, "-c", blocker], env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.unit
+def test_the_rule_checker_catches_an_offence(tmp_path: Path) -> None:
+    offender = tmp_path / "leaky.py"
+    offender.write_text("import os\nfrom rclpy.node import Node\nimport std_msgs.msg\nfrom . import rclpy\n")
+    assert ros_imports(offender, tmp_path) == [
+        "leaky.py:2 imports rclpy.node",
+        "leaky.py:3 imports std_msgs.msg",
+    ]
+
+
+@pytest.mark.unit
+def test_executables_are_installed_where_ros2_run_looks() -> None:
+    byc = INSTALL_LIB / "byc"
+    assert byc.is_file() and os.access(byc, os.X_OK), f"{byc} missing: run colcon build"
+    result = subprocess.run([str(byc), "--version"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and "by_your_command" in result.stdout
+
+
+@pytest.mark.unit
+def test_doctor_passes_in_the_project_environment() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "by_your_command.cli.byc", "doctor"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "ok    rclpy" in result.stdout
