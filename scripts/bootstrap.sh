@@ -10,6 +10,11 @@ APT_PACKAGES=(espeak-ng sox libsox-fmt-all libportaudio2 iproute2)
 say() { printf 'bootstrap: %s\n' "$*"; }
 die() { printf 'bootstrap: ERROR: %s\n' "$*" >&2; exit 1; }
 
+# One bootstrap at a time per checkout (parallel `make` runs would race pip and colcon).
+mkdir -p "$ROOT/log"
+exec 9>"$ROOT/log/.bootstrap.lock"
+flock 9
+
 hash_of() { cat "$@" 2>/dev/null | sha256sum | cut -d' ' -f1; }
 
 # --- 1. Python -------------------------------------------------------------------------------

@@ -8,11 +8,6 @@ from pathlib import Path
 
 import pytest
 import rclpy
-from byc_testing import running_process, wait_for
-from rclpy.node import Node
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy
-from rclpy.serialization import deserialize_message, serialize_message
-
 from by_your_command_msgs.msg import (
     AudioChunk,
     AudioDataUtterance,
@@ -20,6 +15,10 @@ from by_your_command_msgs.msg import (
     CommandVerdict,
     PlaybackStatus,
 )
+from byc_testing import running_process, wait_for
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, QoSReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
 
 
 def sample_messages() -> dict[str, object]:

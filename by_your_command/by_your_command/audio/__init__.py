@@ -1,0 +1,1 @@
+"""Audio building blocks without ROS: PCM conversion, resampling, WAV files, devices, echo control."""

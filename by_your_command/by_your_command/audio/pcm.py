@@ -1,0 +1,79 @@
+"""PCM helpers shared by every audio component: int16 <-> float, channel mixing, resampling, WAV."""
+
+from __future__ import annotations
+
+import wave
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+from scipy.signal import resample_poly
+
+Int16Array = npt.NDArray[np.int16]
+FloatArray = npt.NDArray[np.float32]
+
+INT16_SCALE = 32768.0
+
+
+def int16_to_float(pcm: Int16Array) -> FloatArray:
+    """Scale int16 samples to float32 in [-1, 1)."""
+    return (np.asarray(pcm, dtype=np.int16).astype(np.float32)) / np.float32(INT16_SCALE)
+
+
+def float_to_int16(samples: npt.ArrayLike) -> Int16Array:
+    """Scale float samples in [-1, 1] to int16, clipping what lies outside."""
+    scaled = np.rint(np.asarray(samples, dtype=np.float64) * INT16_SCALE)
+    return np.clip(scaled, -32768, 32767).astype(np.int16)
+
+
+def to_mono(pcm: Int16Array, channels: int) -> Int16Array:
+    """Average interleaved channels into one; `pcm` length must be a multiple of `channels`."""
+    if channels < 1:
+        raise ValueError(f"channels must be >= 1, got {channels}")
+    if channels == 1:
+        return np.asarray(pcm, dtype=np.int16)
+    if len(pcm) % channels:
+        raise ValueError(f"{len(pcm)} samples is not a whole number of {channels}-channel frames")
+    frames = np.asarray(pcm, dtype=np.int32).reshape(-1, channels)
+    return np.rint(frames.mean(axis=1)).astype(np.int16)
+
+
+def resample(pcm: Int16Array, from_rate: int, to_rate: int) -> Int16Array:
+    """Band-limited polyphase resampling of mono int16 audio (e.g. 24 kHz speech to a 16 kHz device).
+
+    Block-by-block use adds small edge effects at block boundaries; for streams use `StreamResampler`.
+    """
+    if from_rate <= 0 or to_rate <= 0:
+        raise ValueError(f"sample rates must be positive, got {from_rate} -> {to_rate}")
+    if from_rate == to_rate or len(pcm) == 0:
+        return np.asarray(pcm, dtype=np.int16)
+    ratio = Fraction(to_rate, from_rate)
+    out = resample_poly(int16_to_float(pcm), ratio.numerator, ratio.denominator)
+    return float_to_int16(out)
+
+
+def read_wav(path: str | Path) -> tuple[Int16Array, int, int]:
+    """Read a 16-bit PCM WAV file: (interleaved samples, sample_rate, channels)."""
+    with wave.open(str(path), "rb") as wav:
+        if wav.getsampwidth() != 2:
+            raise ValueError(f"{path}: {8 * wav.getsampwidth()}-bit WAV; only 16-bit PCM is supported")
+        frames = wav.readframes(wav.getnframes())
+        return np.frombuffer(frames, dtype="<i2").astype(np.int16), wav.getframerate(), wav.getnchannels()
+
+
+def write_wav(path: str | Path, pcm: Int16Array, sample_rate: int, channels: int = 1) -> None:
+    """Write interleaved int16 samples as a 16-bit PCM WAV file."""
+    with wave.open(str(path), "wb") as wav:
+        wav.setnchannels(channels)
+        wav.setsampwidth(2)
+        wav.setframerate(sample_rate)
+        wav.writeframes(np.asarray(pcm, dtype="<i2").tobytes())
+
+
+def rms_dbfs(pcm: Int16Array) -> float:
+    """Level of a block in dB relative to full scale (-inf for digital silence)."""
+    if len(pcm) == 0:
+        return float("-inf")
+    rms = float(np.sqrt(np.mean(np.square(int16_to_float(pcm), dtype=np.float64))))
+    return 20.0 * np.log10(rms) if rms > 0 else float("-inf")
