@@ -18,7 +18,9 @@ INT16_SCALE = 32768.0
 
 def int16_to_float(pcm: Int16Array) -> FloatArray:
     """Scale int16 samples to float32 in [-1, 1)."""
-    return (np.asarray(pcm, dtype=np.int16).astype(np.float32)) / np.float32(INT16_SCALE)
+    samples: FloatArray = np.asarray(pcm, dtype=np.int16).astype(np.float32)
+    samples /= np.float32(INT16_SCALE)
+    return samples
 
 
 def float_to_int16(samples: npt.ArrayLike) -> Int16Array:
@@ -36,7 +38,8 @@ def to_mono(pcm: Int16Array, channels: int) -> Int16Array:
     if len(pcm) % channels:
         raise ValueError(f"{len(pcm)} samples is not a whole number of {channels}-channel frames")
     frames = np.asarray(pcm, dtype=np.int32).reshape(-1, channels)
-    return np.rint(frames.mean(axis=1)).astype(np.int16)
+    mono: Int16Array = np.rint(frames.mean(axis=1)).astype(np.int16)
+    return mono
 
 
 def resample(pcm: Int16Array, from_rate: int, to_rate: int) -> Int16Array:
