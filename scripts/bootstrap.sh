@@ -70,7 +70,9 @@ fi
 build_key="$venv_key $(cd "$ROOT" && {
   find by_your_command_msgs -type f | sort | xargs sha256sum
   sha256sum by_your_command/setup.py by_your_command/setup.cfg by_your_command/package.xml
-  find by_your_command/launch by_your_command/config by_your_command/resource -type f | sort
+  for dir in launch config resource; do
+    if [ -d "by_your_command/$dir" ]; then find "by_your_command/$dir" -type f; fi
+  done | sort
 } | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$ROOT/install/setup.bash" ] || [ "$(cat "$ROOT/install/.byc-stamp" 2>/dev/null)" != "$build_key" ]; then
   say "colcon build"
