@@ -1,0 +1,95 @@
+"""file_audio_publisher: WAV files -> `audio` (AudioChunk, 16 kHz mono), real time or faster.
+
+Waits for `min_subscribers` subscribers on `audio`, plays the files in order (optionally looping),
+then publishes True on the latched `file_audio_done` topic so tests and scripts can wait for the end.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from by_your_command_msgs.msg import AudioChunk
+from rclpy.node import Node
+from std_msgs.msg import Bool
+
+from by_your_command.audio.file_source import ChunkSchedule, Clip, FileSourceConfig, load_clip
+from by_your_command.nodes._audio_msgs import make_audio_chunk
+from by_your_command.nodes._params import declare_config
+from by_your_command.nodes._qos import LATCHED, STREAM
+
+NS_PER_S = 1_000_000_000
+WAIT_LOG_PERIOD_S = 5.0
+
+
+class FileAudioPublisher(Node):
+    def __init__(self) -> None:
+        super().__init__("file_audio_publisher")
+        self.config = declare_config(self, FileSourceConfig)
+        clips = [Clip(Path(f).stem, load_clip(f, self.config.sample_rate)) for f in self.config.files]
+        if self.config.lead_silence_ms:
+            silence = np.zeros(self.config.lead_silence_ms * self.config.sample_rate // 1000, dtype=np.int16)
+            clips.insert(0, Clip("lead_silence", silence))
+        self.schedule = ChunkSchedule(clips, self.config)
+        self.audio_pub = self.create_publisher(AudioChunk, "audio", STREAM)
+        self.done_pub = self.create_publisher(Bool, "file_audio_done", LATCHED)
+        self.done_pub.publish(Bool(data=False))
+        self.publish_failures = 0
+        self._start_monotonic: float | None = None
+        self._start_ns = 0
+        self._waiting_since = time.monotonic()
+        seconds = sum(len(c.samples) for c in clips) / self.config.sample_rate
+        period = self.config.chunk_samples / self.config.sample_rate / self.config.rate_factor
+        # Tick at most every 10 ms; each tick publishes every chunk that is due (no drift).
+        self.timer = self.create_timer(max(min(period, 0.01), 0.001), self._tick)
+        self.get_logger().info(
+            f"{len(self.config.files)} file(s), {seconds:.2f} s of audio at {self.config.rate_factor}x; "
+            f"waiting for {self.config.min_subscribers} subscriber(s) on 'audio'"
+        )
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        if self._start_monotonic is None:
+            if self.audio_pub.get_subscription_count() < self.config.min_subscribers:
+                if now - self._waiting_since > WAIT_LOG_PERIOD_S:
+                    self._waiting_since = now
+                    self.get_logger().info("still waiting for subscribers on 'audio'")
+                return
+            self._start_monotonic = now
+            self._start_ns = int(self.get_clock().now().nanoseconds)
+            self.get_logger().info("subscriber found: playing")
+        elapsed = now - self._start_monotonic
+        for chunk in self.schedule.due(elapsed):
+            stamp_ns = self._start_ns + int(chunk.offset_s / self.config.rate_factor * NS_PER_S)
+            msg = make_audio_chunk(
+                chunk.samples,
+                self.config.sample_rate,
+                1,
+                Time(sec=stamp_ns // NS_PER_S, nanosec=stamp_ns % NS_PER_S),
+                chunk.stream_id,
+            )
+            try:
+                self.audio_pub.publish(msg)
+            except Exception as error:  # rclpy raises RCLError under overload: count, never crash
+                self.publish_failures += 1
+                self.get_logger().error(f"publish failed ({self.publish_failures} so far): {error}")
+        if self.schedule.finished:
+            self.timer.cancel()
+            self.done_pub.publish(Bool(data=True))
+            self.get_logger().info(
+                f"done: {self.schedule.samples_sent / self.config.sample_rate:.2f} s published, "
+                f"{self.publish_failures} publish failures"
+            )
+
+
+def main(args: list[str] | None = None) -> None:
+    from by_your_command.nodes._runtime import run_node
+
+    run_node(FileAudioPublisher, args if args is not None else sys.argv)
+
+
+if __name__ == "__main__":
+    main()

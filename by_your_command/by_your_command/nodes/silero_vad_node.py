@@ -1,0 +1,168 @@
+"""silero_vad_node: audio (AudioChunk, any block size) -> voice_activity + prompt_voice utterance chunks.
+
+Listens on `input_topic` (default `audio_filtered`; set it to `audio`, or remap, when there is no
+echo control). Sleep/wake via `wake_cmd`, mute via `voice_active`, wake/sleep phrases on
+`prompt_text`; the state is latched on `attention_state`. Logic lives in by_your_command.vad.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from builtin_interfaces.msg import Time
+from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
+from rclpy.node import Node
+from std_msgs.msg import Bool, String
+
+from by_your_command.nodes._audio_msgs import int16_field, pcm_of
+from by_your_command.nodes._params import declare_config
+from by_your_command.nodes._qos import LATCHED, RELIABLE, STREAM
+from by_your_command.vad.attention import Attention, PhraseCommand, PhraseMatcher
+from by_your_command.vad.config import VadConfig
+from by_your_command.vad.detector import VoiceDetector
+from by_your_command.vad.model import SileroModel
+from by_your_command.vad.segmenter import Event, UtteranceChunk, VoiceActivity
+
+NS_PER_S = 1_000_000_000
+STATS_PERIOD_S = 10.0
+HOUSEKEEPING_PERIOD_S = 0.2  # audio timeout checks; also keeps the executor responsive to SIGTERM
+
+
+def _to_ns(stamp: Time) -> int:
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+class SileroVadNode(Node):
+    def __init__(self) -> None:
+        super().__init__("silero_vad_node")
+        self.config = declare_config(self, VadConfig)
+        self.detector = VoiceDetector(self.config, SileroModel())
+        self.attention = Attention(awake=self.config.start_awake)
+        self.phrases = PhraseMatcher(self.config.wake_phrases, self.config.sleep_phrases)
+        self.activity_pub = self.create_publisher(Bool, "voice_activity", RELIABLE)
+        self.voice_pub = self.create_publisher(AudioDataUtterance, "prompt_voice", RELIABLE)
+        self.state_pub = self.create_publisher(String, "attention_state", LATCHED)
+        self.create_subscription(AudioChunk, self.config.input_topic, self._on_audio, STREAM)
+        self.create_subscription(Bool, "wake_cmd", self._on_wake_cmd, RELIABLE)
+        self.create_subscription(Bool, "voice_active", self._on_voice_active, RELIABLE)
+        self.create_subscription(String, "prompt_text", self._on_prompt_text, RELIABLE)
+        self.blocks_ignored = 0  # arrived while asleep or muted
+        self.blocks_rejected = 0  # malformed
+        self.publish_failures = 0
+        self.utterances = 0
+        self._reported: tuple[int, ...] = ()
+        self._last_audio = time.monotonic()
+        self._last_report = time.monotonic()
+        self.create_timer(HOUSEKEEPING_PERIOD_S, self._housekeeping)
+        self._publish_state()
+        self.get_logger().info(
+            f"VAD ready on '{self.config.input_topic}': threshold={self.config.threshold} "
+            f"min_silence={self.config.min_silence_duration_ms} ms pre_roll={self.config.pre_roll_frames} "
+            f"chunk={self.config.utterance_chunk_frames} frames, {self.attention.state.value}"
+        )
+
+    def _on_audio(self, msg: AudioChunk) -> None:
+        self._last_audio = time.monotonic()
+        if not self.attention.listening:
+            self.blocks_ignored += 1
+            return
+        stamp = _to_ns(msg.header.stamp) or int(self.get_clock().now().nanoseconds)
+        try:
+            events = self.detector.process(pcm_of(msg), int(msg.sample_rate), int(msg.channels), stamp)
+        except ValueError as error:
+            self.blocks_rejected += 1
+            self.get_logger().error(
+                f"bad audio chunk dropped ({self.blocks_rejected} so far): {error}", throttle_duration_sec=5.0
+            )
+            return
+        self._publish(events)
+
+    def _on_wake_cmd(self, msg: Bool) -> None:
+        self._change(self.attention.set_awake(bool(msg.data)))
+
+    def _on_voice_active(self, msg: Bool) -> None:
+        self._change(self.attention.set_muted(not msg.data))
+
+    def _on_prompt_text(self, msg: String) -> None:
+        command = self.phrases.match(msg.data)
+        if command is not None:
+            self.get_logger().info(f"'{command.value}' phrase heard in prompt_text")
+            self._change(self.attention.set_awake(command is PhraseCommand.WAKE))
+
+    def _change(self, changed: bool) -> None:
+        if not changed:
+            return
+        if not self.attention.listening:
+            # Close the open utterance with its end marker; no stale pre-roll survives the pause.
+            self._publish(self.detector.stop())
+        self._publish_state()
+
+    def _publish_state(self) -> None:
+        self.state_pub.publish(String(data=self.attention.state.value))
+        self.get_logger().info(f"attention: {self.attention.state.value}")
+
+    def _publish(self, events: list[Event]) -> None:
+        for event in events:
+            try:
+                if isinstance(event, VoiceActivity):
+                    self.activity_pub.publish(Bool(data=event.active))
+                    self.utterances += int(event.active)
+                elif isinstance(event, UtteranceChunk):
+                    self.voice_pub.publish(self._utterance_msg(event))
+            except Exception as error:  # rclpy raises RCLError under overload: count, never crash
+                self.publish_failures += 1
+                self.get_logger().error(f"publish failed ({self.publish_failures} so far): {error}")
+
+    @staticmethod
+    def _utterance_msg(chunk: UtteranceChunk) -> AudioDataUtterance:
+        msg = AudioDataUtterance(
+            utterance_id=chunk.utterance_id,
+            is_utterance_end=chunk.is_utterance_end,
+            chunk_sequence=chunk.chunk_sequence,
+            sample_rate=chunk.sample_rate,
+            channels=1,
+        )
+        msg.int16_data = int16_field(chunk.samples)
+        return msg
+
+    def _housekeeping(self) -> None:
+        now = time.monotonic()
+        if self.detector.in_utterance and now - self._last_audio > self.config.audio_timeout_ms / 1000:
+            self.get_logger().warning("audio stopped mid-utterance: closing the utterance")
+            self._publish(self.detector.stop())
+        if now - self._last_report >= STATS_PERIOD_S:
+            self._last_report = now
+            self._report()
+
+    def _report(self) -> None:
+        current = (
+            self.detector.frames,
+            self.utterances,
+            self.blocks_ignored,
+            self.blocks_rejected,
+            self.publish_failures,
+        )
+        if current != self._reported:
+            self._reported = current
+            self.get_logger().info(
+                f"frames={current[0]} utterances={current[1]} ignored_blocks={current[2]} "
+                f"rejected_blocks={current[3]} publish_failures={current[4]} "
+                f"resampled_blocks={self.detector.resampled_blocks}"
+            )
+
+    def destroy_node(self) -> None:
+        # Shutting down mid-utterance still ends it properly for downstream consumers.
+        if self.detector.in_utterance:
+            self._publish(self.detector.stop())
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    from by_your_command.nodes._runtime import run_node
+
+    run_node(SileroVadNode, args if args is not None else sys.argv)
+
+
+if __name__ == "__main__":
+    main()

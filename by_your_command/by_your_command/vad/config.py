@@ -1,0 +1,85 @@
+"""Parameters of the Silero VAD node: the one place their defaults live."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+DEFAULT_WAKE_PHRASES = ["wake up", "wakeup", "awaken", "wake"]
+DEFAULT_SLEEP_PHRASES = ["go to sleep", "sleeptime", "sleep"]
+
+
+@dataclass(frozen=True)
+class VadConfig:
+    threshold: float = field(
+        default=0.5, metadata={"help": "speech starts when Silero's probability >= this"}
+    )
+    neg_threshold: float = field(
+        default=-1.0,
+        metadata={"help": "silence counts when probability < this (hysteresis); < 0 means threshold - 0.15"},
+    )
+    min_silence_duration_ms: int = field(
+        default=250, metadata={"help": "silence that ends an utterance (ms)"}
+    )
+    pre_roll_frames: int = field(
+        default=15, metadata={"help": "512-sample frames before the onset included in the utterance"}
+    )
+    max_buffer_frames: int = field(
+        default=250,
+        metadata={"help": "most frames held before publishing (bounds memory in whole-utterance mode)"},
+    )
+    utterance_chunk_frames: int = field(
+        default=10, metadata={"help": "frames per prompt_voice chunk; 0 = one chunk per utterance"}
+    )
+    sample_rate: int = field(default=16000, metadata={"help": "rate the VAD runs at (Silero: 16000)"})
+    audio_timeout_ms: int = field(
+        default=1000,
+        metadata={"help": "close an open utterance when no audio arrives this long (mic stopped, gate shut)"},
+    )
+    start_awake: bool = field(default=True, metadata={"help": "listen from startup (else wait for wake)"})
+    wake_phrases: list[str] = field(
+        default_factory=lambda: list(DEFAULT_WAKE_PHRASES),
+        metadata={"help": "prompt_text phrases (whole words) that wake the VAD"},
+    )
+    sleep_phrases: list[str] = field(
+        default_factory=lambda: list(DEFAULT_SLEEP_PHRASES),
+        metadata={"help": "prompt_text phrases (whole words) that put the VAD to sleep"},
+    )
+    input_topic: str = field(
+        default="audio_filtered", metadata={"help": "audio input (AudioChunk); 'audio' without echo control"}
+    )
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.threshold < 1.0:
+            raise ValueError(f"threshold must be in (0, 1), got {self.threshold}")
+        if self.neg_threshold >= self.threshold:
+            raise ValueError(
+                f"neg_threshold ({self.neg_threshold}) must be below threshold ({self.threshold})"
+            )
+        if self.min_silence_duration_ms < 0:
+            raise ValueError(f"min_silence_duration_ms must be >= 0, got {self.min_silence_duration_ms}")
+        if self.pre_roll_frames < 0:
+            raise ValueError(f"pre_roll_frames must be >= 0, got {self.pre_roll_frames}")
+        if self.max_buffer_frames < 1:
+            raise ValueError(f"max_buffer_frames must be >= 1, got {self.max_buffer_frames}")
+        if self.utterance_chunk_frames < 0:
+            raise ValueError(f"utterance_chunk_frames must be >= 0, got {self.utterance_chunk_frames}")
+        if self.audio_timeout_ms <= 0:
+            raise ValueError(f"audio_timeout_ms must be > 0, got {self.audio_timeout_ms}")
+        if self.sample_rate != 16000:
+            raise ValueError(f"Silero runs at 16000 Hz here, got sample_rate={self.sample_rate}")
+
+    @property
+    def effective_neg_threshold(self) -> float:
+        return self.neg_threshold if self.neg_threshold >= 0 else max(self.threshold - 0.15, 0.0)
+
+    def min_silence_frames(self, frame_samples: int) -> int:
+        frames = math.ceil(self.min_silence_duration_ms * self.sample_rate / 1000 / frame_samples)
+        return max(frames, 1)
+
+    @property
+    def frames_per_chunk(self) -> int:
+        """Interim chunks are cut at this many frames (whole-utterance mode still honours the bound)."""
+        if self.utterance_chunk_frames == 0:
+            return self.max_buffer_frames
+        return min(self.utterance_chunk_frames, self.max_buffer_frames)

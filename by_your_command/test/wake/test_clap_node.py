@@ -1,0 +1,75 @@
+"""clap_detector_node in a real graph: a synthesized double clap on `audio` publishes wake_cmd True."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from by_your_command_msgs.msg import AudioChunk
+from byc_testing import python_module, running_process, wait_for
+from std_msgs.msg import Bool
+from vad.probe import probe_node
+from wake.test_clap import scene
+
+from by_your_command.nodes._audio_msgs import make_audio_chunk
+from by_your_command.nodes._qos import RELIABLE, STREAM
+
+
+@pytest.mark.ros
+def test_double_clap_publishes_wake_cmd(ros_namespace: str) -> None:
+    command = python_module(
+        "by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={ros_namespace}"
+    )
+    # One second of room noise first: the node may match our publisher a little after we match it.
+    audio_pcm = scene([1.5, 2.0], seconds=3.0)
+    with probe_node(ros_namespace) as probe, running_process(command) as node:
+        wakes = probe.listen(Bool, "wake_cmd", RELIABLE)
+        audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
+
+        def step(condition: object) -> object:
+            assert node.poll() is None, node.stdout.read() if node.stdout else "node died"
+            probe.spin(0.01)
+            return condition
+
+        wait_for(
+            lambda: step(
+                audio.get_subscription_count() and probe.node.count_publishers(probe.topic("wake_cmd"))
+            ),
+            timeout=30,
+            what="clap_detector_node to discover us",
+        )
+        # 48 kHz stereo in: the node converts to what the detector expects
+        from by_your_command.audio.pcm import resample
+
+        stereo = np.repeat(resample(audio_pcm, 16000, 48000), 2)
+        for offset in range(0, len(stereo), 3072):
+            audio.publish(make_audio_chunk(stereo[offset : offset + 3072], 48000, 2))
+            probe.spin(0.01)  # paced (~3x real time) so a best-effort queue of 10 never overflows
+        wait_for(lambda: step(wakes), timeout=10, what="wake_cmd")
+        assert [w.data for w in wakes] == [True]
+
+
+@pytest.mark.ros
+def test_enabled_can_change_at_run_time_and_thresholds_cannot(ros_namespace: str) -> None:
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    command = python_module(
+        "by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={ros_namespace}"
+    )
+    with probe_node(ros_namespace) as probe, running_process(command) as node:
+        client = AsyncParameterClient(probe.node, f"{ros_namespace}/clap_detector_node")
+
+        def step(value: object) -> object:
+            assert node.poll() is None, node.stdout.read() if node.stdout else "node died"
+            probe.spin(0.01)
+            return value
+
+        wait_for(lambda: step(client.services_are_ready()), timeout=30, what="the parameter services")
+
+        def set_one(parameter: Parameter) -> bool:
+            future = client.set_parameters([parameter])
+            wait_for(lambda: step(future.done()), timeout=10, what="set_parameters")
+            return bool(future.result().results[0].successful)
+
+        assert set_one(Parameter("enabled", value=False))
+        assert not set_one(Parameter("peak_threshold", value=0.5))
