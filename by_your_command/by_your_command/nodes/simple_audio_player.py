@@ -57,7 +57,8 @@ class SimpleAudioPlayerNode(Node):
         self.status_pub = self.create_publisher(PlaybackStatus, "playback_status", RELIABLE)
         self.played_pub = self.create_publisher(AudioChunk, "audio_played", STREAM)
         self.loop = PlayerLoop(self.engine, self.sink, self._on_played, self._publish_state)
-        self.create_subscription(AudioChunk, "response_voice", self._on_voice, STREAM)
+        # RELIABLE: agents send replies in bursts faster than real time; best effort would drop them.
+        self.create_subscription(AudioChunk, "response_voice", self._on_voice, RELIABLE)
         self.create_subscription(Bool, "interruption_signal", self._on_interruption, RELIABLE)
         self.create_timer(1.0 / self.config.status_rate_hz, self._on_status_timer)
         self._last_status: PlaybackState | None = None

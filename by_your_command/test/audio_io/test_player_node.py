@@ -27,7 +27,7 @@ def test_player_plays_reports_and_stops_on_interruption(ros_namespace: str, tmp_
         "-p", "sink:=wav", "-p", f"wav_path:={wav}", "-p", "sample_rate:=16000", "-p", "block_ms:=20",
     )  # fmt: skip
     with probe_node(ros_namespace) as probe, running_process(command) as node:
-        voice = probe.node.create_publisher(AudioChunk, "response_voice", STREAM)
+        voice = probe.node.create_publisher(AudioChunk, "response_voice", RELIABLE)
         interrupt = probe.node.create_publisher(Bool, "interruption_signal", RELIABLE)
         speaking = probe.listen(Bool, "assistant_speaking", LATCHED)
         status = probe.listen(PlaybackStatus, "playback_status", RELIABLE)
