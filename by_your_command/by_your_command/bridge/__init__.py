@@ -1,0 +1,1 @@
+"""The ROS ⇄ agent WebSocket bridge without ROS: rosbridge v2 protocol, policy, server core, client."""

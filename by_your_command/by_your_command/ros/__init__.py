@@ -1,0 +1,1 @@
+"""ROS helpers that need rclpy or rosidl introspection (allowed to import ROS, unlike the core)."""

@@ -1,0 +1,198 @@
+"""Any ROS message ⇄ JSON-ready dicts, with rosbridge's conventions.
+
+Nested messages become objects, arrays lists, Time/Duration `{sec, nanosec}` (they are ordinary
+messages), and uint8[]/char[] (and fixed uint8[N]) base64 strings, like rosbridge. Inbound dicts are
+checked field by field: unknown fields, wrong JSON types and out-of-range numbers are errors with
+the field's path, never silently ignored. Absent fields keep their defaults (rosbridge does that).
+"""
+
+from __future__ import annotations
+
+import array
+import base64
+import binascii
+import importlib
+import math
+import re
+from typing import Any
+
+from by_your_command.bridge.protocol import normalize_type
+
+_SEQUENCE_RE = re.compile(r"^sequence<(.+?)(?:, ?(\d+))?>$")
+_ARRAY_RE = re.compile(r"^(.+)\[(\d+)\]$")
+_BOUNDED_STRING_RE = re.compile(r"^w?string<(\d+)>$")
+_INT_RANGES = {
+    "int8": (-(2**7), 2**7 - 1),
+    "uint8": (0, 2**8 - 1),
+    "char": (0, 2**8 - 1),
+    "octet": (0, 2**8 - 1),
+    "int16": (-(2**15), 2**15 - 1),
+    "uint16": (0, 2**16 - 1),
+    "int32": (-(2**31), 2**31 - 1),
+    "uint32": (0, 2**32 - 1),
+    "int64": (-(2**63), 2**63 - 1),
+    "uint64": (0, 2**64 - 1),
+}
+_FLOATS = {"float", "double"}
+_BYTE_ELEMENTS = {"uint8", "char", "octet"}
+# array.array typecodes rclpy uses for numeric sequences: fast bulk conversion
+_TYPECODES = {
+    "int8": "b",
+    "uint8": "B",
+    "int16": "h",
+    "uint16": "H",
+    "int32": "i",
+    "uint32": "I",
+    "int64": "q",
+    "uint64": "Q",
+    "float": "f",
+    "double": "d",
+}
+
+
+class ConversionError(ValueError):
+    pass
+
+
+def message_class(type_name: str) -> Any:
+    """`std_msgs/msg/String` (or `std_msgs/String`) → the generated Python class."""
+    package, _, name = normalize_type(type_name).split("/")
+    try:
+        module = importlib.import_module(f"{package}.msg")
+        return getattr(module, name)
+    except (ImportError, AttributeError):
+        raise ConversionError(f"message type {type_name!r} is not installed") from None
+
+
+def _fields(cls: Any) -> dict[str, str]:
+    fields: dict[str, str] = cls.get_fields_and_field_types()
+    return fields
+
+
+# --- ROS → JSON ----------------------------------------------------------------------------------
+
+
+def to_dict(msg: Any) -> dict[str, Any]:
+    return {name: _value_to_json(getattr(msg, name), kind) for name, kind in _fields(type(msg)).items()}
+
+
+def _value_to_json(value: Any, kind: str) -> Any:
+    element, is_sequence = _element_kind(kind)
+    if is_sequence:
+        if element in _BYTE_ELEMENTS:
+            raw = bytes(value) if not isinstance(value, list) else b"".join(value)
+            return base64.b64encode(raw).decode("ascii")
+        if element in _FLOATS:
+            return [_float_to_json(item) for item in value]
+        if element in _TYPECODES or element == "boolean":
+            return (
+                value.tolist() if hasattr(value, "tolist") else [_scalar_to_json(v, element) for v in value]
+            )
+        return [_value_to_json(item, element) for item in value]
+    return _scalar_to_json(value, kind)
+
+
+def _scalar_to_json(value: Any, kind: str) -> Any:
+    if kind in _FLOATS:
+        return _float_to_json(value)
+    if kind in ("octet", "char") and isinstance(value, (bytes, str)):
+        return ord(value) if len(value) == 1 else 0
+    if "/" in kind:
+        return to_dict(value)
+    return value  # bool, int, str
+
+
+def _float_to_json(value: float) -> Any:
+    return float(value) if math.isfinite(value) else None  # JSON has no NaN/inf (rosbridge: null)
+
+
+def _element_kind(kind: str) -> tuple[str, bool]:
+    sequence = _SEQUENCE_RE.match(kind)
+    if sequence:
+        return sequence.group(1), True
+    fixed = _ARRAY_RE.match(kind)
+    if fixed:
+        return fixed.group(1), True
+    return kind, False
+
+
+# --- JSON → ROS ----------------------------------------------------------------------------------
+
+
+def from_dict(cls: Any, data: dict[str, Any], path: str = "") -> Any:
+    """Build a `cls` message from `data`; ConversionError names the offending field."""
+    if not isinstance(data, dict):
+        raise ConversionError(f"{path or 'message'}: expected an object, got {type(data).__name__}")
+    fields = _fields(cls)
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConversionError(f"{path or cls.__name__}: unknown field(s) {unknown}")
+    msg = cls()
+    for name, value in data.items():
+        field_path = f"{path}.{name}" if path else name
+        converted = _value_from_json(value, fields[name], field_path)
+        try:
+            setattr(msg, name, converted)
+        except (AssertionError, TypeError, ValueError) as error:
+            raise ConversionError(f"{field_path}: {error or 'invalid value'}") from None
+    return msg
+
+
+def _value_from_json(value: Any, kind: str, path: str) -> Any:
+    sequence = _SEQUENCE_RE.match(kind)
+    fixed = _ARRAY_RE.match(kind)
+    if sequence or fixed:
+        element = (sequence or fixed).group(1)  # type: ignore[union-attr]
+        bound = int(sequence.group(2)) if sequence and sequence.group(2) else None
+        length = int(fixed.group(2)) if fixed else None
+        items = _sequence_from_json(value, element, path)
+        count = len(items)
+        if bound is not None and count > bound:
+            raise ConversionError(f"{path}: at most {bound} elements allowed, got {count}")
+        if length is not None and count != length:
+            raise ConversionError(f"{path}: exactly {length} elements required, got {count}")
+        return items
+    return _scalar_from_json(value, kind, path)
+
+
+def _sequence_from_json(value: Any, element: str, path: str) -> Any:
+    if element in _BYTE_ELEMENTS and isinstance(value, str):
+        try:
+            raw = base64.b64decode(value, validate=True)
+        except (binascii.Error, ValueError):
+            raise ConversionError(f"{path}: not valid base64") from None
+        return [bytes([b]) for b in raw] if element == "octet" else array.array("B", raw)
+    if not isinstance(value, list):
+        raise ConversionError(
+            f"{path}: expected a list" + (" or base64 string" if element in _BYTE_ELEMENTS else "")
+        )
+    items = [_scalar_from_json(item, element, f"{path}[{index}]") for index, item in enumerate(value)]
+    typecode = _TYPECODES.get(element)
+    return array.array(typecode, items) if typecode and element != "octet" else items
+
+
+def _scalar_from_json(value: Any, kind: str, path: str) -> Any:
+    if "/" in kind:
+        return from_dict(message_class(kind), value, path)
+    if kind == "boolean":
+        if not isinstance(value, bool):
+            raise ConversionError(f"{path}: expected true/false, got {value!r}")
+        return value
+    if kind in _FLOATS:
+        if value is None:
+            return math.nan
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConversionError(f"{path}: expected a number, got {value!r}")
+        return float(value)
+    if kind in _INT_RANGES:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConversionError(f"{path}: expected an integer, got {value!r}")
+        low, high = _INT_RANGES[kind]
+        if not low <= value <= high:
+            raise ConversionError(f"{path}: {value} is out of range for {kind} [{low}, {high}]")
+        return bytes([value]) if kind == "octet" else value
+    if kind in ("string", "wstring") or _BOUNDED_STRING_RE.match(kind):
+        if not isinstance(value, str):
+            raise ConversionError(f"{path}: expected a string, got {value!r}")
+        return value
+    raise ConversionError(f"{path}: unsupported field type {kind}")

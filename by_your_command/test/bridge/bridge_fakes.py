@@ -1,0 +1,84 @@
+"""Shared helpers for bridge tests: a fake RosGraph and a server running on loopback."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import replace
+from typing import Any
+
+from by_your_command.bridge.config import AllowLists, BridgeParams, TopicRule, parse_allow_lists
+from by_your_command.bridge.core import BridgeCore, PublishError
+from by_your_command.bridge.server import BridgeServer
+
+ALLOW = parse_allow_lists(
+    {
+        "subscribe": [
+            {"topic": "prompt_voice", "type": "by_your_command_msgs/msg/AudioDataUtterance"},
+            {"topic": "prompt_text", "type": "std_msgs/msg/String"},
+            {"topic": "voice_activity", "type": "std_msgs/msg/Bool"},
+            {"topic": "camera_forwarded", "type": "sensor_msgs/msg/CompressedImage"},
+        ],
+        "publish": [
+            {"topic": "response_text", "type": "std_msgs/msg/String"},
+            {"topic": "response_cmd", "type": "std_msgs/msg/String", "class": "command"},
+        ],
+    }
+)
+NAMESPACE = "/robot1"
+
+
+class FakeGraph:
+    """Records what the core asks of ROS; rejects a non-string `data` like the real converter."""
+
+    def __init__(self) -> None:
+        self.subscribed: set[str] = set()
+        self.advertised: set[str] = set()
+        self.published: list[tuple[str, dict[str, Any]]] = []
+
+    def subscribe(self, rule: TopicRule, full_topic: str) -> None:
+        self.subscribed.add(full_topic)
+
+    def unsubscribe(self, full_topic: str) -> None:
+        self.subscribed.discard(full_topic)
+
+    def advertise(self, rule: TopicRule, full_topic: str) -> None:
+        self.advertised.add(full_topic)
+
+    def publish(self, rule: TopicRule, full_topic: str, msg: dict[str, Any]) -> None:
+        if set(msg) - {"data"}:
+            raise PublishError(f"unknown field(s) {sorted(set(msg) - {'data'})}")
+        if not isinstance(msg.get("data", ""), str):
+            raise PublishError("data: expected a string")
+        self.published.append((full_topic, msg))
+
+
+def make_core(params: BridgeParams | None = None, allow: AllowLists = ALLOW) -> tuple[BridgeCore, FakeGraph]:
+    graph = FakeGraph()
+    return BridgeCore(params or BridgeParams(port=0), allow, graph, NAMESPACE), graph
+
+
+@asynccontextmanager
+async def running_bridge(token: str = "", **overrides: Any) -> AsyncIterator[tuple[BridgeServer, FakeGraph]]:
+    params = replace(BridgeParams(port=0), **overrides)
+    core, graph = make_core(params)
+    server = BridgeServer(core, token)
+    await server.start()
+    try:
+        yield server, graph
+    finally:
+        await server.stop()
+
+
+async def eventually(condition: Any, timeout: float = 5.0, what: str = "") -> Any:
+    """Async twin of byc_testing.wait_for: poll without blocking the loop, never a fixed sleep."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if loop.time() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what or condition}")
+        await asyncio.sleep(0.005)
