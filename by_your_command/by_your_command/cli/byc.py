@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from by_your_command import __version__
+from by_your_command.cli import expand_prompt
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,11 @@ class Subcommand:
 SUBCOMMANDS: dict[str, Subcommand] = {
     "doctor": Subcommand("check that this machine can run by_your_command", cmd_doctor),
     "demo": Subcommand("run the offline voice demo", cmd_demo),
+    "prompt": Subcommand(
+        "list prompts and macros, or print one expanded exactly as agents get it",
+        expand_prompt.run,
+        expand_prompt.add_arguments,
+    ),
 }
 
 

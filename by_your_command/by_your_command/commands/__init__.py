@@ -1,0 +1,1 @@
+"""Robot command vocabulary, grammar, routing and safety checks (no rclpy)."""

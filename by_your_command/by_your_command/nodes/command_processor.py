@@ -1,0 +1,84 @@
+"""command_processor: response_cmd text -> validated robot commands on arm/behavior/wake topics.
+
+Every command found gets a CommandVerdict on command_status (accepted or refused, with the reason).
+All the logic is in by_your_command.commands; this node only moves messages.
+"""
+
+from __future__ import annotations
+
+import time
+
+from by_your_command_msgs.msg import CommandVerdict
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from std_msgs.msg import Bool, String
+
+from by_your_command.commands.processor import CommandProcessorConfig, Verdict
+from by_your_command.commands.routing import Destination
+from by_your_command.nodes._params import declare_config
+from by_your_command.nodes._qos import RELIABLE
+from by_your_command.nodes._runtime import run_node
+
+
+class CommandProcessorNode(Node):
+    def __init__(self) -> None:
+        super().__init__("command_processor")
+        self.config = declare_config(self, CommandProcessorConfig)
+        self.processor = self.config.build()
+        self.outputs: dict[Destination, Publisher] = {
+            Destination.ARM: self.create_publisher(String, self.config.arm_topic, RELIABLE),
+            Destination.BEHAVIOR: self.create_publisher(String, self.config.behavior_topic, RELIABLE),
+        }
+        self.wake = self.create_publisher(Bool, self.config.wake_topic, RELIABLE)
+        self.status = self.create_publisher(CommandVerdict, self.config.status_topic, RELIABLE)
+        self.create_subscription(String, self.config.input_topic, self.on_text, RELIABLE)
+        self.accepted = 0
+        self.refused = 0
+        self.get_logger().info(
+            f"listening on {self.resolve_topic_name(self.config.input_topic)}; "
+            f"{len(self.processor.grammar.vocabulary.commands)} commands, "
+            f"allow-list {self.config.allowed_commands or 'all'}, min interval {self.config.min_interval_s} s"
+        )
+
+    def on_text(self, message: String) -> None:
+        for verdict in self.processor.process(message.data, time.monotonic()):
+            topic = ""
+            reason = verdict.reason
+            accepted = verdict.accepted
+            if verdict.route is not None:
+                try:
+                    topic = self.send(verdict)
+                except Exception as error:  # publish() can raise under overload: report, never crash
+                    accepted, topic, reason = False, "", f"publish failed: {error}"
+            self.report(verdict, accepted, reason, topic)
+
+    def send(self, verdict: Verdict) -> str:
+        assert verdict.route is not None
+        publisher = self.outputs[verdict.route.destination]
+        publisher.publish(String(data=verdict.command))
+        if verdict.route.wake is not None:
+            self.wake.publish(Bool(data=verdict.route.wake))
+        return str(publisher.topic_name)
+
+    def report(self, verdict: Verdict, accepted: bool, reason: str, topic: str) -> None:
+        status = CommandVerdict(
+            raw=verdict.raw, command=verdict.command, accepted=accepted, reason=reason, topic=topic
+        )
+        status.header.stamp = self.get_clock().now().to_msg()
+        self.status.publish(status)
+        if accepted:
+            self.accepted += 1
+            self.get_logger().info(f"{verdict.command} -> {topic}")
+        else:
+            self.refused += 1
+            self.get_logger().warning(
+                f"refused {verdict.raw[:80]!r}: {reason} ({self.refused} refused, {self.accepted} accepted)"
+            )
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(CommandProcessorNode, args)
+
+
+if __name__ == "__main__":
+    main()

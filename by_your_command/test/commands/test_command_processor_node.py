@@ -1,0 +1,163 @@
+"""command_processor in a real rclpy graph: response_cmd in; arm, behavior, wake and verdicts out."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+import rclpy
+from by_your_command_msgs.msg import CommandVerdict
+from byc_testing import REPO_ROOT, python_module, running_process, wait_for
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, QoSReliabilityPolicy
+from std_msgs.msg import Bool, String
+
+RELIABLE = QoSProfile(depth=100, reliability=QoSReliabilityPolicy.RELIABLE)
+GRUNT1_CONFIG = REPO_ROOT / "by_your_command" / "config" / "command_processor_grunt1.yaml"
+
+
+@dataclass
+class Probe:
+    """The test's side of the graph: publishes response_cmd, records every output topic."""
+
+    node: Node
+    executor: SingleThreadedExecutor
+    publisher: Any
+    received: dict[str, list[Any]] = field(default_factory=dict)
+
+    def spin(self) -> None:
+        self.executor.spin_once(timeout_sec=0.02)
+
+    def send(self, text: str) -> None:
+        self.publisher.publish(String(data=text))
+
+    def data(self, topic: str) -> list[Any]:
+        return [getattr(message, "data", message) for message in self.received.get(topic, [])]
+
+    def verdicts(self) -> list[CommandVerdict]:
+        return self.received.get("command_status", [])
+
+
+@pytest.fixture
+def probe(ros_namespace: str) -> Iterator[Probe]:
+    rclpy.init()
+    node = Node("command_processor_probe", namespace=ros_namespace)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    probe = Probe(node, executor, node.create_publisher(String, "response_cmd", RELIABLE))
+    try:
+        yield probe
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def listen(probe: Probe, topic: str, message_type: type, key: str | None = None) -> Any:
+    def store(message: Any) -> None:
+        probe.received.setdefault(key or topic, []).append(message)
+
+    return probe.node.create_subscription(message_type, topic, store, RELIABLE)
+
+
+def start_processor(namespace: str, *ros_args: str) -> Any:
+    module = python_module("by_your_command.nodes.command_processor")
+    return running_process([*module, "--ros-args", "-r", f"__ns:={namespace}", *ros_args])
+
+
+def wait_connected(probe: Probe, process: Any, subscriptions: list[Any]) -> None:
+    def ready() -> bool:
+        assert process.poll() is None, f"command_processor died: {process.stdout.read()}"
+        probe.spin()
+        return probe.publisher.get_subscription_count() > 0 and all(
+            sub.get_publisher_count() > 0 for sub in subscriptions
+        )
+
+    wait_for(ready, timeout=20, what="command_processor discovered")
+
+
+@pytest.mark.ros
+def test_commands_are_routed_and_every_verdict_is_published(probe: Probe, ros_namespace: str) -> None:
+    subscriptions = [
+        listen(probe, "arm_preset", String),
+        listen(probe, "behavior_command", String),
+        listen(probe, "wake_cmd", Bool),
+        listen(probe, "command_status", CommandVerdict),
+    ]
+    with start_processor(ros_namespace, "-p", "min_interval_s:=0.0") as process:
+        wait_connected(probe, process, subscriptions)
+        probe.send("```\nCOMMAND: Pan left.\nfollow@person\n```")
+        probe.send("good morning!")
+        probe.send("sleep; wake; tenhut")
+
+        def all_verdicts() -> bool:
+            probe.spin()
+            return len(probe.verdicts()) >= 6
+
+        wait_for(all_verdicts, timeout=10, what="6 verdicts")
+        wait_for(lambda: probe.spin() or len(probe.data("wake_cmd")) >= 2, timeout=10, what="wake_cmd")
+
+    assert probe.data("arm_preset") == ["pan@left", "tenhut"]
+    assert probe.data("behavior_command") == ["follow@person", "sleep", "wake"]
+    assert probe.data("wake_cmd") == [False, True]
+    summary = [(v.raw, v.command, v.accepted, v.topic) for v in probe.verdicts()]
+    assert summary == [
+        ("COMMAND: Pan left", "pan@left", True, f"{ros_namespace}/arm_preset"),
+        ("follow@person", "follow@person", True, f"{ros_namespace}/behavior_command"),
+        ("good morning!", "", False, ""),
+        ("sleep", "sleep", True, f"{ros_namespace}/behavior_command"),
+        ("wake", "wake", True, f"{ros_namespace}/behavior_command"),
+        ("tenhut", "tenhut", True, f"{ros_namespace}/arm_preset"),
+    ]
+    assert "unknown command" in probe.verdicts()[2].reason
+
+
+@pytest.mark.ros
+def test_safety_layer_in_the_graph(probe: Probe, ros_namespace: str) -> None:
+    subscriptions = [
+        listen(probe, "behavior_command", String),
+        listen(probe, "command_status", CommandVerdict),
+    ]
+    args = ("-p", "allowed_commands:=[lookup]", "-p", "min_interval_s:=60.0")
+    with start_processor(ros_namespace, *args) as process:
+        wait_connected(probe, process, subscriptions)
+        probe.send("lookup, lookup, reach, stop, stop")
+
+        def five_verdicts() -> bool:
+            probe.spin()
+            return len(probe.verdicts()) >= 5
+
+        wait_for(five_verdicts, timeout=10, what="5 verdicts")
+    assert [(v.command, v.accepted) for v in probe.verdicts()] == [
+        ("lookup", True),
+        ("lookup", False),
+        ("reach", False),
+        ("stop", True),
+        ("stop", True),
+    ]
+    assert "rate limited" in probe.verdicts()[1].reason
+    assert "allow-list" in probe.verdicts()[2].reason
+
+
+@pytest.mark.ros
+def test_grunt1_example_config_publishes_on_absolute_robot_topics(probe: Probe, ros_namespace: str) -> None:
+    # The seed's wiring: namespaced input, absolute /grunt1/... outputs (isolated per test run by domain).
+    subscriptions = [
+        listen(probe, "/grunt1/arm_preset", String, "arm"),
+        listen(probe, "/grunt1/behavior_command", String, "behavior"),
+        listen(probe, "command_status", CommandVerdict),
+    ]
+    with start_processor(ros_namespace, "--params-file", str(GRUNT1_CONFIG)) as process:
+        wait_connected(probe, process, subscriptions)
+        probe.send("lookout\ntrack@cup")
+
+        def routed() -> bool:
+            probe.spin()
+            return bool(probe.data("arm")) and bool(probe.data("behavior"))
+
+        wait_for(routed, timeout=10, what="/grunt1 outputs")
+    assert probe.data("arm") == ["lookout"]
+    assert probe.data("behavior") == ["track@cup"]
