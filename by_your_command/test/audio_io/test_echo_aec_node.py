@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from audio_io.ros_probe import probe_node
 from audio_io.synthetic_room import Room, energy_db, recorded_speech
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk
 from byc_testing import python_module, running_process, wait_for
+from ros_probe import probe_node
 
 from by_your_command.nodes._audio_msgs import make_audio_chunk, pcm_of
 from by_your_command.nodes._qos import STREAM

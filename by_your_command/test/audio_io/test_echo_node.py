@@ -5,9 +5,9 @@ from __future__ import annotations
 import array
 
 import pytest
-from audio_io.ros_probe import probe_node
 from by_your_command_msgs.msg import AudioChunk
 from byc_testing import python_module, running_process, wait_for
+from ros_probe import probe_node
 from std_msgs.msg import Bool
 
 from by_your_command.nodes._qos import LATCHED, STREAM

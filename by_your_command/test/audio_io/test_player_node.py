@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from audio_io.ros_probe import probe_node
 from by_your_command_msgs.msg import AudioChunk, PlaybackStatus
 from byc_testing import python_module, running_process, wait_for
+from ros_probe import probe_node
 from std_msgs.msg import Bool
 
 from by_your_command.nodes._audio_msgs import make_audio_chunk

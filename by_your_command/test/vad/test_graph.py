@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
 from byc_testing import python_module, running_process, wait_for
+from ros_probe import Probe, probe_node
 from std_msgs.msg import Bool, String
 from vad.corpus import sessions
-from vad.probe import Probe, probe_node
 
 from by_your_command.audio.pcm import read_wav
 from by_your_command.nodes._audio_msgs import make_audio_chunk

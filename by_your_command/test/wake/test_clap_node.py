@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from by_your_command_msgs.msg import AudioChunk
 from byc_testing import python_module, running_process, wait_for
+from ros_probe import probe_node
 from std_msgs.msg import Bool
-from vad.probe import probe_node
 from wake.test_clap import scene
 
 from by_your_command.nodes._audio_msgs import make_audio_chunk

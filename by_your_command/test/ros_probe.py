@@ -1,4 +1,4 @@
-"""A small in-test rclpy node that listens to and publishes into the graph under test."""
+"""A small in-test rclpy node (own context) to publish to and listen on the nodes under test."""
 
 from __future__ import annotations
 
@@ -16,11 +16,12 @@ class Probe:
     def __init__(self, node: Node, executor: SingleThreadedExecutor) -> None:
         self.node = node
         self.executor = executor
+        self.received: dict[str, list[Any]] = {}
 
     def listen(self, msg_type: Any, topic: str, qos: Any) -> list[Any]:
-        received: list[Any] = []
-        self.node.create_subscription(msg_type, topic, received.append, qos)
-        return received
+        store = self.received.setdefault(topic, [])
+        self.node.create_subscription(msg_type, topic, store.append, qos)
+        return store
 
     def spin(self, timeout_sec: float = 0.01) -> None:
         self.executor.spin_once(timeout_sec=timeout_sec)
@@ -30,10 +31,10 @@ class Probe:
 
 
 @contextmanager
-def probe_node(namespace: str) -> Iterator[Probe]:
+def probe_node(namespace: str, name: str = "probe") -> Iterator[Probe]:
     context = Context()
     rclpy.init(context=context)
-    node = Node("vad_test_probe", namespace=namespace, context=context)
+    node = Node(name, namespace=namespace, context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     try:
