@@ -13,10 +13,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-import rclpy
 from byc_testing import INSTALL_LIB, running_process, wait_for
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
 
@@ -68,29 +66,11 @@ def bridge_node(namespace: str, env: dict[str, str] | None = None) -> Iterator[t
         yield int(match.group(1)), lines
 
 
-@pytest.fixture
-def graph_node(ros_namespace: str) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = Node("bridge_test", namespace=ros_namespace, context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    try:
-        yield node, executor
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        thread.join(timeout=5)
-
-
 @pytest.mark.parametrize("library", ["roslibpy", "ours"])
 def test_client_subscribes_and_publishes_through_the_bridge(
-    library: str, ros_namespace: str, graph_node: tuple[Node, SingleThreadedExecutor]
+    library: str, ros_namespace: str, graph_node: Node
 ) -> None:
-    node, _ = graph_node
+    node = graph_node
     responses: list[str] = []
     node.create_subscription(String, "response_text", lambda m: responses.append(m.data), _qos.RELIABLE)
     prompts = node.create_publisher(String, "prompt_text", _qos.RELIABLE)
@@ -118,10 +98,8 @@ def test_client_subscribes_and_publishes_through_the_bridge(
         assert not any(TOKEN in line for line in bridge_lines.lines), "the token must never be logged"
 
 
-def test_unauthorized_client_refused_and_diagnostics_published(
-    ros_namespace: str, graph_node: tuple[Node, SingleThreadedExecutor]
-) -> None:
-    node, _ = graph_node
+def test_unauthorized_client_refused_and_diagnostics_published(ros_namespace: str, graph_node: Node) -> None:
+    node = graph_node
     reports: list[DiagnosticArray] = []
     node.create_subscription(DiagnosticArray, "/diagnostics", reports.append, _qos.RELIABLE)
     with bridge_node(ros_namespace, env={"BYC_BRIDGE_TOKEN": TOKEN}) as (port, _):

@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import array
 import io
-import threading
-from collections.abc import Iterator
 
 import pytest
-import rclpy
 from byc_testing import INSTALL_LIB, running_process, wait_for
 from PIL import Image as PilImage
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import Bool
@@ -19,24 +15,6 @@ from std_msgs.msg import Bool
 from by_your_command.nodes import _qos
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
-
-
-@pytest.fixture
-def graph_node(ros_namespace: str) -> Iterator[Node]:
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = Node("frame_test", namespace=ros_namespace, context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    try:
-        yield node
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        thread.join(timeout=5)
 
 
 def frame(index: int, width: int = 1280, height: int = 720) -> Image:
