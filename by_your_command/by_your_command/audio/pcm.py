@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import wave
 from fractions import Fraction
 from pathlib import Path
@@ -54,6 +55,58 @@ def resample(pcm: Int16Array, from_rate: int, to_rate: int) -> Int16Array:
     ratio = Fraction(to_rate, from_rate)
     out = resample_poly(int16_to_float(pcm), ratio.numerator, ratio.denominator)
     return float_to_int16(out)
+
+
+class StreamResampler:
+    """Resamples a chunked stream without clicks at chunk edges: each chunk is filtered with the
+    previous chunk's tail as left context, and a short right margin is held back until more audio
+    (or `flush`) arrives."""
+
+    def __init__(self, from_rate: int, to_rate: int) -> None:
+        if from_rate <= 0 or to_rate <= 0:
+            raise ValueError(f"sample rates must be positive, got {from_rate} -> {to_rate}")
+        ratio = Fraction(to_rate, from_rate)
+        self.up, self.down = ratio.numerator, ratio.denominator
+        self.margin = self.down * math.ceil(64 / self.down)  # input samples, whole output samples
+        self._history = np.zeros(0, dtype=np.float32)
+        self._pending = np.zeros(0, dtype=np.float32)
+
+    @property
+    def identity(self) -> bool:
+        return self.up == self.down
+
+    def push(self, pcm: Int16Array) -> Int16Array:
+        if self.identity:
+            return np.asarray(pcm, dtype=np.int16)
+        self._pending = np.concatenate([self._pending, int16_to_float(pcm)])
+        ready = (len(self._pending) - self.margin) // self.down * self.down
+        if ready <= 0:
+            return np.zeros(0, dtype=np.int16)
+        return self._emit(ready, self._pending[ready : ready + self.margin])
+
+    def reset(self) -> None:
+        """Forget all context (the stream had a gap): the next push starts a new stream."""
+        self._history = self._history[:0]
+        self._pending = self._pending[:0]
+
+    def flush(self) -> Int16Array:
+        """Everything still held back (the stream paused or ended); the next push starts afresh."""
+        if self.identity or len(self._pending) == 0:
+            return np.zeros(0, dtype=np.int16)
+        out = self._emit(len(self._pending), np.zeros(0, dtype=np.float32))
+        self._history = self._history[:0]
+        return out
+
+    def _emit(self, count: int, right: FloatArray) -> Int16Array:
+        # _history and count are whole multiples of `down` (except at flush), so the output grid
+        # of this call continues the previous one exactly.
+        body = self._pending[:count]
+        out = resample_poly(np.concatenate([self._history, body, right]), self.up, self.down)
+        start = len(self._history) * self.up // self.down
+        length = math.ceil(count * self.up / self.down)
+        self._history = np.concatenate([self._history, body])[-self.margin :]
+        self._pending = self._pending[count:]
+        return float_to_int16(out[start : start + length])
 
 
 def read_wav(path: str | Path) -> tuple[Int16Array, int, int]:

@@ -9,19 +9,15 @@ waiting for the sink, so at most the block already playing is heard afterwards.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from fractions import Fraction
 
 import numpy as np
-import numpy.typing as npt
-from scipy.signal import resample_poly
 
-from by_your_command.audio.pcm import Int16Array, float_to_int16, int16_to_float, to_mono
+from by_your_command.audio.pcm import Int16Array, StreamResampler, to_mono
 from by_your_command.audio.sinks import AudioSink
 
 _LOG = logging.getLogger(__name__)
@@ -59,53 +55,6 @@ class PlayerConfig:
     @property
     def block_samples(self) -> int:
         return max(1, self.sample_rate * self.block_ms // 1000)
-
-
-class StreamResampler:
-    """Resamples a chunked stream without clicks at chunk edges: each chunk is filtered with the
-    previous chunk's tail as left context, and a short right margin is held back until more audio
-    (or `flush`) arrives."""
-
-    def __init__(self, from_rate: int, to_rate: int) -> None:
-        if from_rate <= 0 or to_rate <= 0:
-            raise ValueError(f"sample rates must be positive, got {from_rate} -> {to_rate}")
-        ratio = Fraction(to_rate, from_rate)
-        self.up, self.down = ratio.numerator, ratio.denominator
-        self.margin = self.down * math.ceil(64 / self.down)  # input samples, whole output samples
-        self._history = np.zeros(0, dtype=np.float32)
-        self._pending = np.zeros(0, dtype=np.float32)
-
-    @property
-    def identity(self) -> bool:
-        return self.up == self.down
-
-    def push(self, pcm: Int16Array) -> Int16Array:
-        if self.identity:
-            return np.asarray(pcm, dtype=np.int16)
-        self._pending = np.concatenate([self._pending, int16_to_float(pcm)])
-        ready = (len(self._pending) - self.margin) // self.down * self.down
-        if ready <= 0:
-            return np.zeros(0, dtype=np.int16)
-        return self._emit(ready, self._pending[ready : ready + self.margin])
-
-    def flush(self) -> Int16Array:
-        """Everything still held back (the stream paused or ended); the next push starts afresh."""
-        if self.identity or len(self._pending) == 0:
-            return np.zeros(0, dtype=np.int16)
-        out = self._emit(len(self._pending), np.zeros(0, dtype=np.float32))
-        self._history = self._history[:0]
-        return out
-
-    def _emit(self, count: int, right: npt.NDArray[np.float32]) -> Int16Array:
-        # _history and count are whole multiples of `down` (except at flush), so the output grid
-        # of this call continues the previous one exactly.
-        body = self._pending[:count]
-        out = resample_poly(np.concatenate([self._history, body, right]), self.up, self.down)
-        start = len(self._history) * self.up // self.down
-        length = math.ceil(count * self.up / self.down)
-        self._history = np.concatenate([self._history, body])[-self.margin :]
-        self._pending = self._pending[count:]
-        return float_to_int16(out[start : start + length])
 
 
 @dataclass(frozen=True)

@@ -12,13 +12,12 @@ import numpy as np
 import pytest
 from byc_testing import wait_for
 
-from by_your_command.audio.pcm import read_wav, resample
+from by_your_command.audio.pcm import StreamResampler, read_wav, resample
 from by_your_command.audio.player import (
     PlaybackEngine,
     PlayBlock,
     PlayerConfig,
     PlayerLoop,
-    StreamResampler,
 )
 from by_your_command.audio.sinks import WavSink
 
