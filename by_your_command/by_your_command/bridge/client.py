@@ -1,8 +1,15 @@
 """Agent-side asyncio client for the bridge (no ROS needed): rosbridge v2 over WebSocket.
 
-Keeps its subscriptions and advertisements and replays them after every reconnect; reconnects
-with exponential backoff for as long as it runs; buffers received messages in a bounded queue
-(oldest dropped and counted when the agent falls behind).
+- A supervisor task connects, replays advertisements and subscriptions, reads, and reconnects
+  with capped exponential backoff and jitter for as long as the client runs. Nothing the bridge
+  sends and no `on_status` callback can end it: errors are contained, counted and logged.
+  Only close() and an HTTP 401/403 refusal (unless `retry_refusals`) stop it.
+- Received messages wait in per-class lanes (`client_inbox`): receive() serves commands first,
+  then state (latest wins), then audio/text/video in arrival order. Audio, text and commands are
+  never dropped here: when their lane is full the client stops reading the socket, so the bridge
+  counts and reports the loss, which comes out of receive() as a `Lost` in order.
+- receive() raises `ClientStopped` (after draining what was received) once the client is closed,
+  refused or failed, instead of waiting forever.
 """
 
 from __future__ import annotations
@@ -10,6 +17,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import random
+import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -17,11 +27,30 @@ from typing import Any
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus, WebSocketException
 
+from by_your_command.bridge.client_inbox import Inbox, InboxLimits
+from by_your_command.bridge.client_messages import (
+    BridgeRefused,
+    BridgeUnavailable,
+    ClientClosed,
+    ClientFailed,
+    ClientHealth,
+    ClientStopped,
+    Delivery,
+    Lost,
+    Received,
+    zero_per_class,
+)
+from by_your_command.bridge.client_topics import TopicClasses, default_class
+from by_your_command.bridge.client_wire import (
+    PublishFrame,
+    ServerFrameError,
+    StatusFrame,
+    encode_publish,
+    parse_server_frame,
+)
+from by_your_command.bridge.config import TOPIC_CLASSES, TopicClass
 from by_your_command.bridge.protocol import (
     Advertise,
-    Incoming,
-    ProtocolError,
-    Publish,
     Request,
     Status,
     Subscribe,
@@ -29,29 +58,65 @@ from by_your_command.bridge.protocol import (
     Unsubscribe,
     encode_request,
     normalize_type,
-    parse_server_frame,
 )
 
+__all__ = [
+    "BridgeClient",
+    "BridgeRefused",
+    "BridgeUnavailable",
+    "ClientClosed",
+    "ClientFailed",
+    "ClientHealth",
+    "ClientOptions",
+    "ClientStopped",
+    "Delivery",
+    "Lost",
+    "Received",
+]
+
 log = logging.getLogger(__name__)
-
-
-class BridgeUnavailable(ConnectionError):
-    """The bridge is not connected right now (the client keeps trying in the background)."""
-
-
-class BridgeRefused(ConnectionError):
-    """The bridge refused the handshake (wrong token, too many clients): retrying will not help."""
 
 
 @dataclass(frozen=True)
 class ClientOptions:
     token: str = ""
-    receive_queue: int = 1000
+    receive_queue: int = 1000  # audio + text messages buffered before the client stops reading
+    command_queue: int = 256  # command messages buffered before the client stops reading
+    state_keys_per_topic: int = 32  # pending latest-wins values per state topic (one per key)
+    state_key_fields: tuple[tuple[str, str], ...] = (("playback_status", "stream_id"),)
     backoff_initial_s: float = 0.1
     backoff_max_s: float = 5.0
+    backoff_jitter: float = 0.5  # each wait is drawn from [1 - jitter, 1] × the exponential delay
+    stable_after_s: float = 5.0  # a connection that lasted this long resets the backoff
     open_timeout_s: float = 5.0
+    close_timeout_s: float = 2.0
     max_message_bytes: int = 16 * 1024 * 1024
     retry_refusals: bool = False  # a 401 is a configuration error, not a transient one
+    status_history: int = 100  # recent bridge statuses kept in `statuses`
+
+    def __post_init__(self) -> None:
+        if not 0 < self.backoff_initial_s <= self.backoff_max_s:
+            raise ValueError("need 0 < backoff_initial_s <= backoff_max_s")
+        if not 0 <= self.backoff_jitter < 1:
+            raise ValueError(f"backoff_jitter must be in [0, 1), got {self.backoff_jitter}")
+        if self.receive_queue < 1 or self.command_queue < 1 or self.status_history < 1:
+            raise ValueError("receive_queue, command_queue and status_history must be at least 1")
+
+    def inbox_limits(self) -> InboxLimits:
+        return InboxLimits(
+            self.receive_queue, self.command_queue, self.state_keys_per_topic, self.state_key_fields
+        )
+
+
+def backoff_delay(options: ClientOptions, attempt: int, rng: random.Random) -> float:
+    """Capped exponential delay with jitter, so many agents do not reconnect in lockstep."""
+    delay = min(options.backoff_max_s, options.backoff_initial_s * 2.0 ** min(attempt, 30))
+    return delay * rng.uniform(1.0 - options.backoff_jitter, 1.0)
+
+
+def _worth_logging(count: int) -> bool:
+    """The first ten of a kind, then every hundredth: visible, but a hostile peer cannot flood the log."""
+    return count <= 10 or count % 100 == 0
 
 
 class BridgeClient:
@@ -66,43 +131,80 @@ class BridgeClient:
         self._on_status = on_status
         self._subscriptions: dict[str, Subscribe] = {}
         self._advertised: dict[str, Advertise] = {}
-        self._inbox: asyncio.Queue[Incoming] = asyncio.Queue()
-        self._connection: ClientConnection | None = None
+        self._classes = TopicClasses()
+        self._inbox = Inbox(self.options.inbox_limits())
+        self._arrived = asyncio.Event()  # something was queued, or the client stopped
+        self._space = asyncio.Event()  # the consumer made room: reading may resume
         self._connected = asyncio.Event()
+        self._requests = asyncio.Lock()  # replay and (un)subscribe/(un)advertise never interleave
+        self._connection: ClientConnection | None = None
         self._runner: asyncio.Task[None] | None = None
+        self._stop_reason: ClientStopped | None = None  # template; receive() raises a fresh copy
+        self._stopped = asyncio.Event()
+        self._rng = random.Random()
         self.refusal: BridgeRefused | None = None
-        self.statuses: list[Status] = []  # recent bridge statuses (bounded), newest last
-        self.dropped = 0
+        self.statuses: deque[Status] = deque(maxlen=self.options.status_history)  # newest last
         self.connects = 0
+        self._connection_failures = 0
+        self._protocol_errors = 0
+        self._callback_errors = 0
+        self._internal_errors = 0
+        self._bridge_dropped = zero_per_class()
+        self._unknown_losses = 0
+        self._reading_paused = False
+        self._pauses = 0
+        self._last_error = ""
 
     # --- lifecycle ---------------------------------------------------------------------------
 
     async def start(self) -> None:
+        if self._stop_reason is not None:
+            raise self._stopped_error()
         if self._runner is None:
-            self._runner = asyncio.create_task(self._run())
+            self._runner = asyncio.create_task(self._supervise(), name=f"bridge-client {self.url}")
+            self._runner.add_done_callback(self._supervisor_ended)
 
     async def wait_connected(self, timeout: float | None = None) -> None:
-        waiter = asyncio.ensure_future(self._connected.wait())
-        others = [self._runner] if self._runner else []
-        done, _ = await asyncio.wait({waiter, *others}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
-        if waiter not in done:
-            waiter.cancel()
-            if self.refusal is not None:
-                raise self.refusal
-            raise BridgeUnavailable(f"not connected to {self.url} within {timeout} s")
+        """Until connected; raises BridgeRefused/ClientStopped if the client stops, BridgeUnavailable
+        on timeout."""
+        if self._runner is None and self._stop_reason is None:
+            raise BridgeUnavailable("the client was not started (use start() or `async with`)")
+        connected = asyncio.ensure_future(self._connected.wait())
+        stopped = asyncio.ensure_future(self._stopped.wait())
+        try:
+            await asyncio.wait({connected, stopped}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            connected.cancel()
+            stopped.cancel()
+        if self._connected.is_set():
+            return
+        if self._stop_reason is not None:
+            raise self._stopped_error()
+        raise BridgeUnavailable(f"not connected to {self.url} within {timeout} s")
 
     @property
     def connected(self) -> bool:
         return self._connected.is_set()
 
+    @property
+    def running(self) -> bool:
+        return self._runner is not None and self._stop_reason is None
+
     async def close(self) -> None:
-        if self._runner is not None:
-            self._runner.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._runner
-            self._runner = None
-        if self._connection is not None:
-            await self._connection.close()
+        self._stop(ClientClosed(f"the client of {self.url} was closed"))
+        connection = self._connection
+        if connection is not None:
+            with contextlib.suppress(Exception):  # a clean close (1000) if the bridge answers in time
+                await connection.close()
+        runner, self._runner = self._runner, None
+        if runner is not None:
+            runner.cancel()
+            try:
+                await runner
+            except asyncio.CancelledError:
+                pass
+            except Exception:  # already reported by _supervisor_ended; close() itself must not fail
+                log.debug("supervisor ended with an error while closing", exc_info=True)
         self._connected.clear()
 
     async def __aenter__(self) -> BridgeClient:
@@ -115,115 +217,284 @@ class BridgeClient:
     # --- requests ----------------------------------------------------------------------------
 
     async def subscribe(
-        self, topic: str, msg_type: str | None = None, throttle_rate_ms: int = 0, queue_length: int = 0
+        self,
+        topic: str,
+        msg_type: str | None = None,
+        throttle_rate_ms: int = 0,
+        queue_length: int = 0,
+        topic_class: TopicClass | None = None,
     ) -> None:
-        request = Subscribe(
-            topic, normalize_type(msg_type) if msg_type else None, throttle_rate_ms, queue_length
-        )
-        self._subscriptions[topic] = request
-        await self._send_if_connected(request)
+        """Receive `topic` (replayed after every reconnect). `topic_class` picks the delivery lane;
+        by default the topic contract's class (docs/topics.md), else guessed from the type."""
+        if topic_class is not None and topic_class not in TOPIC_CLASSES:
+            raise ValueError(f"topic_class must be one of {TOPIC_CLASSES}, got {topic_class!r}")
+        normalized = normalize_type(msg_type) if msg_type else None
+        request = Subscribe(topic, normalized, throttle_rate_ms, queue_length)
+        async with self._requests:
+            self._subscriptions[topic] = request
+            self._classes.set(topic, topic_class or default_class(topic, normalized))
+            await self._send_if_connected(request)
 
     async def unsubscribe(self, topic: str) -> None:
-        if self._subscriptions.pop(topic, None) is not None:
-            await self._send_if_connected(Unsubscribe(topic))
+        async with self._requests:
+            if self._subscriptions.pop(topic, None) is not None:
+                self._classes.remove(topic)
+                await self._send_if_connected(Unsubscribe(topic))
 
     async def advertise(self, topic: str, msg_type: str) -> None:
         request = Advertise(topic, normalize_type(msg_type))
-        self._advertised[topic] = request
-        await self._send_if_connected(request)
+        async with self._requests:
+            self._advertised[topic] = request
+            await self._send_if_connected(request)
 
     async def unadvertise(self, topic: str) -> None:
-        if self._advertised.pop(topic, None) is not None:
-            await self._send_if_connected(Unadvertise(topic))
+        async with self._requests:
+            if self._advertised.pop(topic, None) is not None:
+                await self._send_if_connected(Unadvertise(topic))
 
-    async def publish(self, topic: str, msg: dict[str, Any]) -> None:
-        """Send now or raise BridgeUnavailable: stale commands must not be replayed later."""
+    async def publish(self, topic: str, msg: dict[str, Any], request_id: str | int | None = None) -> None:
+        """Send now or raise: BridgeUnavailable while disconnected (stale commands are never
+        replayed later), ClientStopped once closed, ValueError/TypeError for a message that is
+        not JSON (NaN included). A refusal by the bridge comes back as a status (`request_id`)."""
+        if self._stop_reason is not None:
+            raise self._stopped_error()
         connection = self._connection
-        if connection is None or not self.connected:
+        if connection is None or not self._connected.is_set():
             raise BridgeUnavailable(f"cannot publish on {topic!r}: not connected to {self.url}")
+        frame = encode_publish(topic, msg, request_id)
         try:
-            await connection.send(encode_request(Publish(topic, msg)))
+            await connection.send(frame)
         except ConnectionClosed as error:
             raise BridgeUnavailable(f"connection lost while publishing on {topic!r}") from error
 
-    async def receive(self, timeout: float | None = None) -> Incoming:
-        return await asyncio.wait_for(self._inbox.get(), timeout)
-
-    def receive_nowait(self) -> Incoming | None:
+    async def receive(self, timeout: float | None = None) -> Delivery:
+        """The next delivery (commands, then state, then audio/text/video). Raises TimeoutError
+        after `timeout`, ClientStopped once the client stopped and everything received was read."""
+        item = self._take()
+        if item is not None:
+            return item
         try:
-            return self._inbox.get_nowait()
-        except asyncio.QueueEmpty:
-            return None
+            return await asyncio.wait_for(self._wait_for_delivery(), timeout)
+        except asyncio.TimeoutError:  # the builtin one on every Python (they differ on 3.10)
+            raise TimeoutError(f"nothing received within {timeout} s") from None
 
-    # --- internals ---------------------------------------------------------------------------
+    def receive_nowait(self) -> Delivery | None:
+        """The next delivery or None; raises ClientStopped once stopped and drained."""
+        item = self._take()
+        if item is None and self._stop_reason is not None:
+            raise self._stopped_error()
+        return item
+
+    # --- health ------------------------------------------------------------------------------
+
+    def health(self) -> ClientHealth:
+        return ClientHealth(
+            running=self.running,
+            connected=self.connected,
+            connects=self.connects,
+            reconnects=max(0, self.connects - 1),
+            connection_failures=self._connection_failures,
+            protocol_errors=self._protocol_errors,
+            callback_errors=self._callback_errors,
+            internal_errors=self._internal_errors,
+            queued=self._inbox.queued(),
+            dropped=dict(self._inbox.dropped),
+            bridge_dropped=dict(self._bridge_dropped),
+            unknown_losses=self._unknown_losses,
+            reading_paused=self._reading_paused,
+            reading_pauses=self._pauses,
+            last_error=self._last_error,
+        )
+
+    @property
+    def dropped(self) -> int:
+        """Values replaced in this client before being read (state and video only)."""
+        return sum(self._inbox.dropped.values())
+
+    # --- receiving ---------------------------------------------------------------------------
+
+    def _take(self) -> Delivery | None:
+        item = self._inbox.pop()
+        if item is not None and self._reading_paused and not self._inbox.full:
+            self._space.set()
+        return item
+
+    async def _wait_for_delivery(self) -> Delivery:
+        while True:
+            # Look before clearing: wait_for may start this coroutine after the reader queued items.
+            item = self._take()
+            if item is not None:
+                return item
+            if self._stop_reason is not None:
+                raise self._stopped_error()
+            if self._runner is None:
+                raise BridgeUnavailable("the client was not started (use start() or `async with`)")
+            self._arrived.clear()
+            await self._arrived.wait()
+
+    async def _read(self, connection: ClientConnection) -> None:
+        async for frame in connection:
+            try:
+                self._handle(frame)
+            except Exception as error:  # a bug of ours must not end reading: count, log, go on
+                self._internal_error("handling a bridge frame", error)
+            if self._inbox.full:  # back-pressure: the bridge's queue for us fills and it reports drops
+                self._reading_paused = True
+                self._pauses += 1
+                if _worth_logging(self._pauses):
+                    log.warning(
+                        "receive lanes full %s: reading paused (%d times)", self._inbox.queued(), self._pauses
+                    )
+                self._space.clear()
+                await self._space.wait()
+                self._reading_paused = False
+
+    def _handle(self, frame: str | bytes) -> None:
+        try:
+            parsed = parse_server_frame(frame)
+        except ServerFrameError as error:
+            self._protocol_error(str(error))
+            return
+        if isinstance(parsed, PublishFrame):
+            topic = parsed.topic
+            self._inbox.put(Received(topic, self._classes.class_of(topic), parsed.msg, time.monotonic()))
+            self._arrived.set()
+        else:
+            self._handle_status(parsed)
+
+    def _handle_status(self, frame: StatusFrame) -> None:
+        status = frame.status
+        if frame.defects:
+            self._protocol_error(f"status with malformed fields: {'; '.join(frame.defects)}")
+        self.statuses.append(status)
+        if status.level != "info":
+            log.warning("bridge %s [%s]: %s", status.level, status.code[:40] or "-", status.msg[:300])
+        if status.code == "dropped":
+            now = time.monotonic()
+            for reported, count in status.counts.items():
+                topic = self._classes.resolve(reported)
+                topic_class = self._classes.class_of(topic)
+                self._bridge_dropped[topic_class] += count
+                self._inbox.put_lost(Lost(topic, topic_class, count, "the bridge dropped them", now))
+            self._arrived.set()
+        if self._on_status is not None:
+            try:
+                self._on_status(status)
+            except Exception as error:  # the agent's bug: contained, the client goes on
+                self._callback_errors += 1
+                self._last_error = f"on_status raised {error!r}"
+                if _worth_logging(self._callback_errors):
+                    log.exception("on_status callback raised (%d so far)", self._callback_errors)
+
+    # --- supervisor --------------------------------------------------------------------------
+
+    async def _supervise(self) -> None:
+        loop = asyncio.get_running_loop()
+        attempt = 0
+        while self._stop_reason is None:
+            started = loop.time()
+            try:
+                await self._connect_and_read()
+            except InvalidStatus as error:
+                status = error.response.status_code
+                self._failure(f"bridge refused the connection: HTTP {status}")
+                if not self.options.retry_refusals and status in (401, 403):
+                    self.refusal = BridgeRefused(f"bridge refused the connection: HTTP {status}")
+                    log.error("%s; not retrying (check the token)", self.refusal)
+                    self._stop(self.refusal)
+                    return
+            except (OSError, WebSocketException, asyncio.TimeoutError) as error:
+                self._failure(f"bridge connection failed or lost: {error!r}")
+            except Exception as error:  # never let one surprise end reconnecting: count, log, retry
+                self._internal_error("in the connection loop", error)
+            if self._stop_reason is not None:
+                return
+            attempt = 0 if loop.time() - started >= self.options.stable_after_s else attempt + 1
+            await asyncio.sleep(backoff_delay(self.options, attempt, self._rng))
+
+    async def _connect_and_read(self) -> None:
+        headers = {"Authorization": f"Bearer {self.options.token}"} if self.options.token else None
+        async with connect(
+            self.url,
+            additional_headers=headers,
+            compression=None,
+            max_size=self.options.max_message_bytes,
+            open_timeout=self.options.open_timeout_s,
+            close_timeout=self.options.close_timeout_s,
+            proxy=None,  # the bridge is local or on the robot LAN, never behind a web proxy
+        ) as connection:
+            async with self._requests:
+                replay: list[Request] = [*self._advertised.values(), *self._subscriptions.values()]
+                for request in replay:
+                    await connection.send(encode_request(request))
+                self._connection = connection
+                self.connects += 1
+                self._connected.set()
+            log.info("connected to %s (connection %d)", self.url, self.connects)
+            try:
+                await self._read(connection)
+            finally:
+                self._connection = None
+                self._connected.clear()
+                if self._stop_reason is None:
+                    self._report_disconnection()
+        if self._stop_reason is None:  # a clean close by the bridge (restart, shutdown) is a loss too
+            self._failure(f"the bridge closed the connection (code {connection.close_code})")
+
+    def _report_disconnection(self) -> None:
+        """What the bridge had queued for us, and anything published until we are back, is gone:
+        tell the consumer in order, per topic that cannot be refreshed (state is replayed on
+        resubscribe, video is only ever the latest frame)."""
+        now = time.monotonic()
+        for topic, topic_class in self._classes.items():
+            if topic_class in ("audio", "text", "command"):
+                self._unknown_losses += 1
+                self._inbox.put_lost(Lost(topic, topic_class, None, "connection to the bridge lost", now))
+        self._arrived.set()
+
+    def _supervisor_ended(self, task: asyncio.Task[None]) -> None:
+        if self._stop_reason is not None:
+            return
+        error = None if task.cancelled() else task.exception()
+        failed = ClientFailed(f"the client's supervisor ended unexpectedly: {error!r}")
+        failed.__cause__ = error
+        log.error("%s", failed, exc_info=error)
+        self._stop(failed)
+
+    def _stop(self, reason: ClientStopped) -> None:
+        if self._stop_reason is None:
+            self._stop_reason = reason
+            self._stopped.set()
+            self._arrived.set()  # wake receive() so it can drain and then raise
+            self._space.set()
+
+    def _stopped_error(self) -> ClientStopped:
+        reason = self._stop_reason
+        assert reason is not None
+        fresh = type(reason)(str(reason))  # a new instance each time: tracebacks do not pile up
+        fresh.__cause__ = reason.__cause__
+        return fresh
+
+    def _failure(self, message: str) -> None:
+        self._connection_failures += 1
+        self._last_error = message
+        level = logging.INFO if _worth_logging(self._connection_failures) else logging.DEBUG
+        log.log(level, "%s", message)
+
+    def _protocol_error(self, message: str) -> None:
+        self._protocol_errors += 1
+        self._last_error = message
+        if _worth_logging(self._protocol_errors):
+            log.warning("ignoring a frame from the bridge (%d so far): %s", self._protocol_errors, message)
+
+    def _internal_error(self, where: str, error: Exception) -> None:
+        self._internal_errors += 1
+        self._last_error = f"{where}: {error!r}"
+        if _worth_logging(self._internal_errors):
+            log.error("unexpected error %s (%d so far)", where, self._internal_errors, exc_info=error)
 
     async def _send_if_connected(self, request: Request) -> None:
         connection = self._connection
-        if connection is not None and self.connected:
+        if connection is not None and self._connected.is_set():
             with contextlib.suppress(ConnectionClosed):  # replayed on the next connect
                 await connection.send(encode_request(request))
-
-    async def _run(self) -> None:
-        delay = self.options.backoff_initial_s
-        headers = {"Authorization": f"Bearer {self.options.token}"} if self.options.token else None
-        while True:
-            try:
-                async with connect(
-                    self.url,
-                    additional_headers=headers,
-                    compression=None,
-                    max_size=self.options.max_message_bytes,
-                    open_timeout=self.options.open_timeout_s,
-                    proxy=None,  # the bridge is local or on the robot LAN, never behind a web proxy
-                ) as connection:
-                    self._connection = connection
-                    replay: list[Request] = [*self._advertised.values(), *self._subscriptions.values()]
-                    for request in replay:
-                        await connection.send(encode_request(request))
-                    self.connects += 1
-                    self._connected.set()
-                    delay = self.options.backoff_initial_s
-                    log.info("connected to %s", self.url)
-                    await self._read(connection)
-            except InvalidStatus as error:
-                status = error.response.status_code
-                if not self.options.retry_refusals and status in (401, 403):
-                    self.refusal = BridgeRefused(f"bridge refused the connection: HTTP {status}")
-                    log.error("%s", self.refusal)
-                    return
-                log.warning("bridge refused the connection (HTTP %d); retrying", status)
-            except (OSError, WebSocketException, TimeoutError) as error:
-                log.debug("bridge connection failed: %s", error)
-            finally:
-                self._connected.clear()
-                self._connection = None
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, self.options.backoff_max_s)
-
-    async def _read(self, connection: ClientConnection) -> None:
-        with contextlib.suppress(ConnectionClosed):
-            async for frame in connection:
-                try:
-                    item = parse_server_frame(frame)
-                except ProtocolError as error:
-                    log.warning("ignoring a frame from the bridge: %s", error)
-                    continue
-                if isinstance(item, Status):
-                    self._status(item)
-                else:
-                    self._enqueue(item)
-
-    def _enqueue(self, item: Incoming) -> None:
-        if self._inbox.qsize() >= self.options.receive_queue:
-            self._inbox.get_nowait()  # the agent is behind: the oldest message is the least useful
-            self.dropped += 1
-            if self.dropped == 1 or self.dropped % 100 == 0:
-                log.warning("receive queue full: %d message(s) dropped so far", self.dropped)
-        self._inbox.put_nowait(item)
-
-    def _status(self, status: Status) -> None:
-        self.statuses = [*self.statuses[-99:], status]
-        if status.level != "info":
-            log.warning("bridge %s [%s]: %s", status.level, status.code or "-", status.msg)
-        if self._on_status is not None:
-            self._on_status(status)

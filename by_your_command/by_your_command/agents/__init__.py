@@ -1,0 +1,1 @@
+"""Agent runtime (no ROS): provider sessions, turns, barge-in, session cycling, context."""

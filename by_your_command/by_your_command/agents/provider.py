@@ -1,0 +1,84 @@
+"""The contract between the agent runtime and one vendor's realtime session.
+
+One `Provider` object is one session: `connect` opens it, `close` ends it, and a closed provider is
+never reused (the runtime builds a new one through a `ProviderFactory`). Every method may raise
+`ProviderClosed` once the session is gone; a method never blocks longer than the deadline the
+runtime gives it (it wraps calls in timeouts), so implementations need not add their own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator, Sequence
+from dataclasses import dataclass
+from enum import Enum
+from typing import Protocol
+
+from by_your_command.agents.events import ProviderEvent
+
+
+class Role(str, Enum):
+    USER = "user"
+    ASSISTANT = "assistant"
+
+
+@dataclass(frozen=True)
+class HistoryTurn:
+    """One turn carried into a new session as text context (audio is never replayed)."""
+
+    role: Role
+    text: str
+
+
+@dataclass(frozen=True)
+class ToolSpec:
+    name: str
+    description: str
+    parameters: dict[str, object]  # JSON schema
+
+
+@dataclass(frozen=True)
+class SessionSetup:
+    instructions: str
+    history: Sequence[HistoryTurn] = ()
+    tools: Sequence[ToolSpec] = ()
+    audio_out: bool = True  # False: text replies only (command agents)
+
+
+class ProviderClosed(ConnectionError):
+    """The session is closed (by us, by the server, or by a network failure)."""
+
+
+class Provider(Protocol):
+    name: str
+    input_sample_rate: int  # the rate send_audio expects; the runtime resamples to it
+    max_session_s: float  # the provider's own session limit; the runtime rotates before it
+
+    async def connect(self, setup: SessionSetup) -> None: ...
+
+    async def send_audio(self, pcm: bytes) -> None:
+        """Append user audio (mono int16 LE at input_sample_rate) to the current user turn."""
+
+    async def end_of_turn(self) -> None:
+        """The user stopped speaking: commit the turn and ask for a reply."""
+
+    async def send_text(self, text: str) -> None:
+        """A typed user turn that gets a reply."""
+
+    async def send_image(self, jpeg: bytes) -> None:
+        """A camera frame for the model to look at with the next turn."""
+
+    async def send_tool_result(self, call_id: str, output: str) -> None:
+        """The result of a ToolCall; the model continues its reply with it."""
+
+    async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
+        """Cancel the reply and make the history match what was heard: `played_ms` of `item_id`
+        (clamped by the provider to the audio it actually produced)."""
+
+    async def close(self) -> None: ...
+
+    def events(self) -> AsyncIterator[ProviderEvent]:
+        """Events of this session, in the order the server sent them; ends when it closes."""
+
+
+class ProviderFactory(Protocol):
+    def __call__(self) -> Provider: ...

@@ -1,0 +1,508 @@
+"""BridgeClient (the agents' side) over real loopback WebSockets.
+
+Most tests talk to a scripted rosbridge server whose frames the test writes by hand, so it can be
+as hostile as needed; the loss-report test runs the real bridge core and server (fake ROS graph).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import random
+from collections.abc import Coroutine
+from http import HTTPStatus
+from typing import Any
+
+import pytest
+from bridge_fakes import NAMESPACE, eventually, make_core
+from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.exceptions import ConnectionClosed
+from websockets.http11 import Request, Response
+
+import by_your_command.bridge.client as client_module
+from by_your_command.bridge.client import (
+    BridgeClient,
+    BridgeRefused,
+    BridgeUnavailable,
+    ClientClosed,
+    ClientFailed,
+    ClientOptions,
+    Lost,
+    Received,
+    backoff_delay,
+)
+from by_your_command.bridge.client_inbox import Inbox, InboxLimits
+from by_your_command.bridge.config import BridgeParams, parse_allow_lists
+from by_your_command.bridge.protocol import Status
+from by_your_command.bridge.server import BridgeServer
+
+pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
+
+FAST = ClientOptions(backoff_initial_s=0.02, backoff_max_s=0.1)
+
+
+def run(coroutine: Coroutine[Any, Any, None]) -> None:
+    asyncio.run(asyncio.wait_for(coroutine, 30))
+
+
+def publish(topic: str, msg: dict[str, Any]) -> str:
+    return json.dumps({"op": "publish", "topic": topic, "msg": msg})
+
+
+def chunk(sequence: int, end: bool = False) -> dict[str, Any]:
+    return {"int16_data": [sequence] * 4, "chunk_sequence": sequence, "is_utterance_end": end}
+
+
+def playback(stream_id: str, played_ms: int, finished: bool = False) -> dict[str, Any]:
+    return {"stream_id": stream_id, "played_ms": played_ms, "speaking": not finished, "finished": finished}
+
+
+class ScriptedBridge:
+    """A WebSocket server speaking rosbridge frames the test writes; records every request."""
+
+    def __init__(self) -> None:
+        self.connections: list[ServerConnection] = []
+        self.requests: list[list[dict[str, Any]]] = []  # per connection, in order
+        self.refuse_with: HTTPStatus | None = None
+        self._server: Server | None = None
+        self.port = 0
+
+    async def start(self) -> None:
+        self._server = await serve(
+            self._handle, "127.0.0.1", self.port, compression=None, process_request=self._gate
+        )
+        self.port = self._server.sockets[0].getsockname()[1]
+
+    async def stop(self) -> None:
+        assert self._server is not None
+        self._server.close()
+        await self._server.wait_closed()
+
+    @property
+    def url(self) -> str:
+        return f"ws://127.0.0.1:{self.port}/"
+
+    def _gate(self, connection: ServerConnection, request: Request) -> Response | None:
+        if self.refuse_with is not None:
+            return connection.respond(self.refuse_with, "refused\n")
+        return None
+
+    async def _handle(self, connection: ServerConnection) -> None:
+        requests: list[dict[str, Any]] = []
+        self.connections.append(connection)
+        self.requests.append(requests)
+        with contextlib.suppress(ConnectionClosed):
+            async for frame in connection:
+                requests.append(json.loads(frame))
+
+    def ops(self, connection: int = -1) -> list[tuple[str, str]]:
+        return [(r["op"], r["topic"]) for r in self.requests[connection]]
+
+    async def send(self, *frames: str) -> None:
+        for frame in frames:
+            await self.connections[-1].send(frame)
+
+
+async def scripted() -> ScriptedBridge:
+    bridge = ScriptedBridge()
+    await bridge.start()
+    return bridge
+
+
+async def connected_client(
+    bridge: ScriptedBridge, *topics: str, options: ClientOptions = FAST, **kwargs: Any
+) -> BridgeClient:
+    client = BridgeClient(bridge.url, options, **kwargs)
+    await client.start()
+    await client.wait_connected(5)
+    for topic in topics:
+        await client.subscribe(topic)
+    await eventually(lambda: len(bridge.requests[-1]) == len(topics), what="subscriptions")
+    return client
+
+
+async def receive_all(client: BridgeClient, count: int) -> list[Received | Lost]:
+    return [await client.receive(5) for _ in range(count)]
+
+
+# --- 1. nothing the bridge or a callback does ends the client ------------------------------------
+
+
+def test_a_raising_status_callback_is_contained_and_counted() -> None:
+    def on_status(status: Status) -> None:
+        raise RuntimeError(f"agent bug on {status.code}")
+
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_text", on_status=on_status)
+        try:
+            await bridge.send(
+                json.dumps({"op": "status", "level": "warning", "msg": "x", "code": "dropped", "counts": {}}),
+                publish("prompt_text", {"data": "still listening"}),
+            )
+            delivery = await client.receive(5)
+            assert isinstance(delivery, Received) and delivery.msg == {"data": "still listening"}
+            health = client.health()
+            assert (health.callback_errors, health.connected, health.connects) == (1, True, 1)
+            assert "agent bug" in health.last_error
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_malformed_frames_and_odd_status_fields_are_counted_and_skipped() -> None:
+    hostile = [
+        "{not json",
+        "[1, 2]",
+        "[" * 100_000,  # nesting deeper than the JSON parser recurses
+        '{"op":"fly"}',
+        '{"op":"publish","topic":"prompt_text"}',
+        '{"op":"publish","topic":7,"msg":{}}',
+        '{"op":"publish","topic":"prompt_text","msg":[1]}',
+    ]
+    odd_status = {
+        "op": "status",
+        "level": "panic",
+        "msg": {"nested": True},
+        "code": "dropped",
+        "counts": {"/robot1/prompt_text": "many", f"{NAMESPACE}/prompt_voice": 2, "/c": 1e400, "/d": -1},
+    }
+
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_text", "prompt_voice")
+        try:
+            await bridge.send(*hostile, json.dumps(odd_status))  # 1e400 is sent as Infinity
+            await bridge.send(publish("prompt_text", {"data": "after the garbage"}))
+            lost = await client.receive(5)  # the usable part of the odd report: 2 audio lost
+            assert isinstance(lost, Lost) and (lost.topic, lost.topic_class, lost.count) == (
+                "prompt_voice",
+                "audio",
+                2,
+            )
+            delivery = await client.receive(5)
+            assert isinstance(delivery, Received) and delivery.msg == {"data": "after the garbage"}
+            health = client.health()
+            assert health.protocol_errors == len(hostile) + 1
+            assert health.connects == 1 and health.connected  # no reconnect needed
+            assert client.statuses[-1].level == "error"  # an unknown level is not reassuring
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_an_unexpected_error_in_the_connection_loop_does_not_stop_reconnecting(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_text")
+        real_encode = client_module.encode_request
+        failures = iter([RuntimeError("surprise 1"), ValueError("surprise 2")])
+
+        def flaky_encode(request: Any) -> str:
+            error = next(failures, None)
+            if error is not None:
+                raise error
+            return real_encode(request)
+
+        monkeypatch.setattr(client_module, "encode_request", flaky_encode)
+        try:
+            await bridge.connections[-1].close()  # the bridge restarts: the replay hits two bugs
+            await eventually(lambda: len(bridge.connections) == 4, what="three reconnects")
+            await eventually(lambda: bridge.ops() == [("subscribe", "prompt_text")], what="replay")
+            await bridge.send(publish("prompt_text", {"data": "back"}))
+            deliveries = await receive_all(client, 2)
+            assert isinstance(deliveries[0], Lost) and deliveries[0].count is None
+            assert isinstance(deliveries[1], Received) and deliveries[1].msg == {"data": "back"}
+            health = client.health()
+            assert (health.internal_errors, health.connects, health.reconnects) == (2, 2, 1)
+            assert "surprise 2" in health.last_error
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_backoff_grows_exponentially_to_its_cap_with_jitter() -> None:
+    options = ClientOptions(backoff_initial_s=0.1, backoff_max_s=5.0, backoff_jitter=0.5)
+    rng = random.Random(7)
+    for attempt in range(40):
+        nominal = min(5.0, 0.1 * 2**attempt)
+        draws = [backoff_delay(options, attempt, rng) for _ in range(20)]
+        assert all(nominal * 0.5 <= d <= nominal for d in draws)
+        assert len(set(draws)) > 1  # jittered: agents restarting together do not retry in lockstep
+
+
+# --- receive() reports a dead client -----------------------------------------------------------
+
+
+def test_receive_raises_once_the_client_is_closed_after_draining() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_text")
+        await bridge.send(publish("prompt_text", {"data": "last words"}))
+        await eventually(lambda: client.health().queued["text"] == 1, what="message buffered")
+        waiter = asyncio.ensure_future(client.receive())
+        assert isinstance(await waiter, Received)
+        waiter = asyncio.ensure_future(client.receive())  # nothing left: waits...
+        await asyncio.sleep(0)  # (a yield, not a delay: the waiter reaches its wait)
+        await client.close()
+        with pytest.raises(ClientClosed):  # ...and is woken, not left waiting forever
+            await asyncio.wait_for(waiter, 5)
+        with pytest.raises(ClientClosed):
+            client.receive_nowait()
+        with pytest.raises(ClientClosed):
+            await client.publish("response_text", {"data": "too late"})
+        assert not client.health().running
+        await bridge.stop()
+
+    run(scenario())
+
+
+def test_receive_raises_when_the_bridge_refuses_the_token() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        bridge.refuse_with = HTTPStatus.UNAUTHORIZED
+        client = BridgeClient(bridge.url, ClientOptions(token="wrong"))
+        await client.start()
+        try:
+            with pytest.raises(BridgeRefused, match="401"):
+                await asyncio.wait_for(client.receive(), 5)
+            with pytest.raises(BridgeRefused):
+                await client.wait_connected(5)
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_receive_raises_when_the_supervisor_task_dies() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "voice_activity")
+        waiter = asyncio.ensure_future(client.receive())
+        supervisor = next(t for t in asyncio.all_tasks() if t.get_name() == f"bridge-client {bridge.url}")
+        supervisor.cancel()  # what no exception inside it can do any more
+        with pytest.raises(ClientFailed, match="supervisor"):
+            await asyncio.wait_for(waiter, 5)
+        assert not client.health().running
+        await client.close()
+        await bridge.stop()
+
+    run(scenario())
+
+
+# --- 2. per-class lanes ------------------------------------------------------------------------
+
+
+def test_commands_then_state_then_audio_whatever_the_arrival_order() -> None:
+    topics = ("prompt_voice", "voice_activity", "playback_status", "command_status", "camera_forwarded")
+
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, *topics)
+        try:
+            frames = [publish("prompt_voice", chunk(i)) for i in range(50)]
+            frames += [
+                publish("voice_activity", {"data": True}),
+                publish("playback_status", playback("reply-1", 800)),
+                publish("camera_forwarded", {"format": "jpeg", "data": "frame-1"}),
+                publish("playback_status", playback("reply-1", 1200, finished=True)),
+                publish("playback_status", playback("reply-1", 1200)),  # a late echo: must not win
+                publish("playback_status", playback("reply-2", 100)),
+                publish("prompt_voice", chunk(50, end=True)),
+                publish("camera_forwarded", {"format": "jpeg", "data": "frame-2"}),
+                publish("command_status", {"raw": "stop", "accepted": True}),
+                publish("voice_activity", {"data": False}),
+            ]
+            await bridge.send(*frames)
+            await eventually(lambda: sum(client.health().queued.values()) == 56, what="all frames read")
+            out = await receive_all(client, 56)
+            assert all(isinstance(d, Received) for d in out)
+            received = [d for d in out if isinstance(d, Received)]
+            summary = [(d.topic, d.msg.get("stream_id", d.msg.get("data"))) for d in received[:4]]
+            assert summary == [
+                ("command_status", None),
+                ("playback_status", "reply-1"),
+                ("playback_status", "reply-2"),
+                ("voice_activity", False),
+            ]
+            reply_1, voice = received[1], received[3]
+            assert reply_1.msg["finished"] and reply_1.superseded == 2
+            assert voice.superseded == 1  # the agent learns a True came and went unseen
+            data = [(d.topic, d.msg.get("chunk_sequence", d.msg.get("data"))) for d in received[4:]]
+            assert data == [("prompt_voice", i) for i in range(51)] + [("camera_forwarded", "frame-2")]
+            assert [d.topic_class for d in received[:5]] == ["command", "state", "state", "state", "audio"]
+            health = client.health()
+            assert health.dropped == {"audio": 0, "video": 1, "command": 0, "state": 3, "text": 0}
+            assert sum(health.queued.values()) == 0
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_audio_is_never_dropped_a_full_lane_stops_reading_instead() -> None:
+    sent = 3000
+
+    async def scenario() -> None:
+        bridge = await scripted()
+        options = ClientOptions(receive_queue=10, backoff_initial_s=0.02, backoff_max_s=0.1)
+        client = await connected_client(bridge, "prompt_voice", "voice_activity", options=options)
+        try:
+            frames = [publish("prompt_voice", chunk(i, end=i == sent - 1)) for i in range(sent)]
+            sender = asyncio.ensure_future(bridge.send(*frames))
+            await eventually(lambda: client.health().reading_paused, what="reading paused")
+            assert client.health().queued["audio"] == 10  # bounded: the rest waits in the socket
+            out = await receive_all(client, sent)
+            await sender
+            assert [d.msg["chunk_sequence"] for d in out if isinstance(d, Received)] == list(range(sent))
+            assert isinstance(out[-1], Received) and out[-1].msg["is_utterance_end"]
+            health = client.health()
+            assert health.dropped["audio"] == 0 and health.reading_pauses > 0
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_losses_the_real_bridge_reports_come_out_in_order_as_lost() -> None:
+    """A client that stops reading: the real bridge drops and reports, the agent sees `Lost`."""
+    sent = 400
+    padding = "z" * 100_000  # 40 MB in all: more than the kernel buffers between the two
+
+    async def scenario() -> None:
+        allow = parse_allow_lists(
+            {"subscribe": [{"topic": "prompt_voice", "type": "by_your_command_msgs/msg/AudioDataUtterance"}]}
+        )
+        core, graph = make_core(BridgeParams(port=0, send_queue_messages=16), allow)
+        server = BridgeServer(core, "")
+        await server.start()
+        options = ClientOptions(receive_queue=20)
+        async with BridgeClient(f"ws://127.0.0.1:{server.port}/", options) as client:
+            try:
+                await client.wait_connected(5)
+                await client.subscribe("prompt_voice")
+                await eventually(lambda: graph.subscribed, what="subscription")
+                for index in range(sent):
+                    msg = {"chunk_sequence": index, "is_utterance_end": index == sent - 1, "pad": padding}
+                    core.deliver(f"{NAMESPACE}/prompt_voice", json.dumps(msg))
+                    await asyncio.sleep(0)  # let the bridge's writer and our reader run
+                received: list[int] = []
+                lost = 0
+                while len(received) + lost < sent:
+                    delivery = await client.receive(10)
+                    if isinstance(delivery, Lost):
+                        assert (delivery.topic, delivery.topic_class) == ("prompt_voice", "audio")
+                        assert delivery.count is not None
+                        lost += delivery.count
+                    else:
+                        received.append(delivery.msg["chunk_sequence"])
+                assert lost > 0 and received == sorted(received)
+                health = client.health()
+                assert health.bridge_dropped["audio"] == lost and health.dropped["audio"] == 0
+            finally:
+                await server.stop()
+
+    run(scenario())
+
+
+def test_a_lost_connection_is_reported_to_the_consumer_in_order() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_voice", "voice_activity", "command_status")
+        try:
+            await bridge.send(publish("prompt_voice", chunk(0)), publish("voice_activity", {"data": True}))
+            await eventually(lambda: sum(client.health().queued.values()) == 2, what="frames read")
+            await bridge.connections[-1].close(1011)  # mid-utterance: the end marker will never come
+            await eventually(lambda: len(bridge.connections) == 2 and client.connected, what="reconnect")
+            out = await receive_all(client, 4)
+            kinds = [(type(d).__name__, d.topic) for d in out]
+            assert kinds == [
+                ("Lost", "command_status"),
+                ("Received", "voice_activity"),  # state is replayed by the bridge: no loss event
+                ("Received", "prompt_voice"),
+                ("Lost", "prompt_voice"),
+            ]
+            assert all(d.count is None for d in out if isinstance(d, Lost))
+            assert client.health().unknown_losses == 2
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+# --- 3. publishing -----------------------------------------------------------------------------
+
+
+def test_publish_fails_loudly_when_disconnected_and_readvertises_on_reconnect() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "command_status")
+        try:
+            await client.advertise("response_cmd", "std_msgs/String")
+            await client.publish("response_cmd", {"data": "stop"}, request_id="cmd-1")
+            await eventually(lambda: len(bridge.requests[0]) == 3, what="advertise and publish")
+            assert bridge.requests[0][2] == {
+                "op": "publish",
+                "topic": "response_cmd",
+                "msg": {"data": "stop"},
+                "id": "cmd-1",
+            }
+            with pytest.raises(ValueError):  # JSON has no NaN: refused here, not by the bridge later
+                await client.publish("response_cmd", {"data": math.nan})
+            await bridge.stop()
+            await eventually(lambda: not client.connected, what="disconnect noticed")
+            with pytest.raises(BridgeUnavailable, match="not connected"):
+                await client.publish("response_cmd", {"data": "reach"})
+            await bridge.start()  # same port
+            await client.wait_connected(5)
+            await client.publish("response_cmd", {"data": "wave"})
+            await eventually(lambda: len(bridge.requests[-1]) == 3, what="replay and publish")
+            assert bridge.ops() == [
+                ("advertise", "response_cmd"),
+                ("subscribe", "command_status"),
+                ("publish", "response_cmd"),
+            ]
+            assert bridge.requests[-1][2]["msg"] == {"data": "wave"}
+            assert all(
+                r["msg"] != {"data": "reach"} for c in bridge.requests for r in c if r["op"] == "publish"
+            )
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_receive_on_a_client_never_started_says_so() -> None:
+    async def scenario() -> None:
+        with pytest.raises(BridgeUnavailable, match="not started"):
+            await BridgeClient("ws://127.0.0.1:9/").receive(5)
+
+    run(scenario())
+
+
+def test_state_losses_merge_and_pending_keys_are_bounded() -> None:
+    inbox = Inbox(InboxLimits(state_keys_per_topic=2))
+    for stream_id in ("a", "b", "c"):  # three replies pending for a bound of two: the oldest goes
+        inbox.put(Received("playback_status", "state", playback(stream_id, 10), 0.0))
+    inbox.put_lost(Lost("voice_activity", "state", 2, "bridge", 0.0))
+    inbox.put_lost(Lost("voice_activity", "state", None, "reconnect", 0.0))
+    out = [inbox.pop() for _ in range(len(inbox))]
+    assert [d.msg["stream_id"] for d in out if isinstance(d, Received)] == ["b", "c"]
+    losses = [d for d in out if isinstance(d, Lost)]
+    assert len(losses) == 1 and losses[0].count is None  # 2 + unknown = unknown
+    assert inbox.dropped["state"] == 1 and inbox.pop() is None and inbox.queued()["state"] == 0
