@@ -1,9 +1,13 @@
-"""Trigger → forwarded-frame latency of the frame_forwarder node, against same-run baselines.
+"""Trigger → forwarded-frame latency of the frame_forwarder node, and the cost of hostile frames.
 
 The bench publishes 640x480 rgb8 frames, then a `voice_activity` True trigger, and times the
 arrival of `camera_forwarded`. Baselines measured in the same run: the JPEG encode of the same
 frame in this process (the work the node must do), and the DDS one-way latency of the trigger
-itself (a Bool to a plain subscriber). Figures as JSON lines, then a table.
+itself (a Bool to a plain subscriber).
+Hostile frames, in process: refusing a decompression bomb (a ~100-byte PNG/JPEG declaring
+60000x60000) against checking and passing through a good 640x480 JPEG; and shrinking a 4096x3072
+JPEG to 640 wide with reduce-on-decode (draft) against a full-size decode (the old way).
+Figures as JSON lines, then a table.
 usage: scripts/run.sh python bench/bench_frame_forwarder.py [--triggers N]
 """
 
@@ -11,14 +15,18 @@ from __future__ import annotations
 
 import argparse
 import array
+import io
 import json
 import os
 import statistics
+import struct
 import subprocess
 import sys
 import threading
 import time
 import uuid
+import zlib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -40,16 +48,82 @@ def emit(figure: str, value: float, unit: str, **extra: Any) -> None:
     )
 
 
-def encode_baseline(frame_bytes: bytes, runs: int) -> list[float]:
-    from by_your_command.bridge.imaging import RawImage, encode_raw
-
-    image = RawImage(WIDTH, HEIGHT, "rgb8", WIDTH * 3, frame_bytes)
+def timed_ms(action: Callable[[], object], runs: int) -> list[float]:
     times = []
     for _ in range(runs):
         start = time.perf_counter()
-        encode_raw(image, WIDTH, 80)
+        action()
         times.append((time.perf_counter() - start) * 1000)
     return times
+
+
+def encode_baseline(frame_bytes: bytes, runs: int) -> list[float]:
+    from by_your_command.bridge.frames import FrameForwarderParams
+    from by_your_command.bridge.imaging import ImageLimits, RawImage, encode_raw
+
+    params = FrameForwarderParams()
+    limits = ImageLimits(params.max_input_pixels, params.max_input_bytes)
+    image = RawImage(WIDTH, HEIGHT, "rgb8", WIDTH * 3, frame_bytes)
+    return timed_ms(lambda: encode_raw(image, WIDTH, 80, limits), runs)
+
+
+def _png_chunk(kind: bytes, body: bytes) -> bytes:
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+def hostile_frames(runs: int) -> list[tuple[str, list[float]]]:
+    """In-process costs: refusing bombs vs a good frame; reduce-on-decode vs a full decode."""
+    import numpy as np
+    from PIL import Image as PilImage
+
+    from by_your_command.bridge.frames import FrameForwarderParams
+    from by_your_command.bridge.imaging import ImageError, ImageLimits, fit_compressed
+
+    params = FrameForwarderParams()
+    limits = ImageLimits(params.max_input_pixels, params.max_input_bytes)
+
+    def jpeg_of(width: int, height: int) -> bytes:
+        gradient = np.add.outer(np.arange(height), np.arange(width)) % 256
+        out = io.BytesIO()
+        PilImage.fromarray(gradient.astype(np.uint8), "L").convert("RGB").save(out, "JPEG", quality=85)
+        return out.getvalue()
+
+    good = jpeg_of(WIDTH, HEIGHT)
+    big = jpeg_of(4096, 3072)
+    forged_jpeg = bytearray(jpeg_of(16, 16))
+    sof = forged_jpeg.find(b"\xff\xc0")
+    forged_jpeg[sof + 5 : sof + 9] = struct.pack(">HH", 60000, 60000)
+    forged_png = (
+        b"\x89PNG\r\n\x1a\n"
+        + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", 60000, 60000, 8, 2, 0, 0, 0))
+        + _png_chunk(b"IDAT", zlib.compress(b"\0" * 64))
+        + _png_chunk(b"IEND", b"")
+    )
+
+    def refused(data: bytes) -> None:
+        try:
+            fit_compressed(data, WIDTH, 80, limits)
+        except ImageError:
+            return
+        raise AssertionError("a bomb was not refused")
+
+    def full_decode_shrink() -> None:  # before reduce-on-decode: decode 4096x3072, then resize
+        with PilImage.open(io.BytesIO(big)) as image:
+            image.convert("RGB").resize((WIDTH, 480), PilImage.Resampling.BILINEAR).save(io.BytesIO(), "JPEG")
+
+    return [
+        (
+            "good 640x480 JPEG checked, passed through",
+            timed_ms(lambda: fit_compressed(good, WIDTH, 80, limits), runs),
+        ),
+        ("PNG bomb 60000x60000 refused", timed_ms(lambda: refused(forged_png), runs)),
+        ("JPEG bomb 60000x60000 refused", timed_ms(lambda: refused(bytes(forged_jpeg)), runs)),
+        ("4096x3072 JPEG → 640, full decode (old)", timed_ms(full_decode_shrink, max(3, runs // 10))),
+        (
+            "4096x3072 JPEG → 640, reduce on decode",
+            timed_ms(lambda: fit_compressed(big, WIDTH, 80, limits), max(3, runs // 10)),
+        ),
+    ]
 
 
 def main() -> int:
@@ -73,6 +147,7 @@ def main() -> int:
     pixels = np.repeat(gradient[:, :, None], 3, axis=2) + rng.integers(0, 16, (HEIGHT, WIDTH, 3))
     frame_bytes = pixels.astype(np.uint8).tobytes()
     encode_ms = encode_baseline(frame_bytes, args.triggers)
+    hostile = hostile_frames(args.triggers)
 
     namespace = f"/bench_{uuid.uuid4().hex[:8]}"
     process = subprocess.Popen(
@@ -157,10 +232,22 @@ def main() -> int:
         emit("latency_p50", statistics.median(values), "ms", path=name, n=len(values))
         emit("latency_p99", percentile(values, 99), "ms", path=name, n=len(values))
     emit("ratio_p50_trigger_vs_encode", statistics.median(latencies) / statistics.median(encode_ms), "x")
+    for name, values in hostile:
+        emit("cost_p50", statistics.median(values), "ms", path=name, n=len(values))
+    medians = {name: statistics.median(values) for name, values in hostile}
+    good = medians["good 640x480 JPEG checked, passed through"]
+    emit("ratio_p50_png_bomb_vs_good_frame", medians["PNG bomb 60000x60000 refused"] / good, "x")
+    emit("ratio_p50_jpeg_bomb_vs_good_frame", medians["JPEG bomb 60000x60000 refused"] / good, "x")
+    emit(
+        "ratio_p50_reduce_on_decode_vs_full_decode",
+        medians["4096x3072 JPEG → 640, reduce on decode"]
+        / medians["4096x3072 JPEG → 640, full decode (old)"],
+        "x",
+    )
     print()
-    print(f"{'path':<36} {'p50 ms':>8} {'p99 ms':>8} {'n':>5}")
-    for name, values in rows:
-        print(f"{name:<36} {statistics.median(values):>8.3f} {percentile(values, 99):>8.3f} {len(values):>5}")
+    print(f"{'path':<44} {'p50 ms':>8} {'p99 ms':>8} {'n':>5}")
+    for name, values in [*rows, *hostile]:
+        print(f"{name:<44} {statistics.median(values):>8.3f} {percentile(values, 99):>8.3f} {len(values):>5}")
     return 0
 
 

@@ -40,6 +40,16 @@ class FrameForwarderParams:
     )
     max_width: int = field(default=640, metadata={"help": "wider frames are scaled down (aspect kept)"})
     jpeg_quality: int = field(default=80, metadata={"help": "JPEG quality 1..95 for encoded frames"})
+    max_input_pixels: int = field(
+        default=4096 * 4096, metadata={"help": "larger frames (declared or raw) are rejected undecoded"}
+    )
+    max_input_bytes: int = field(
+        default=64 * 1024 * 1024,
+        metadata={"help": "limit on a frame's data and on its decoded size (bytes)"},
+    )
+    error_log_interval_s: float = field(
+        default=10.0, metadata={"help": "log a rejected frame's kind at most once per interval (counted)"}
+    )
 
     def __post_init__(self) -> None:
         if self.image_transport not in ("raw", "compressed"):
@@ -48,6 +58,8 @@ class FrameForwarderParams:
             raise ValueError("max_video_fps, nth_voice_chunk must be >= 0 and max_frame_age_ms > 0")
         if self.trigger_wait_ms < 0 or self.max_width < 16 or not 1 <= self.jpeg_quality <= 95:
             raise ValueError("trigger_wait_ms >= 0, max_width >= 16 and jpeg_quality in 1..95 required")
+        if self.max_input_pixels < 1 or self.max_input_bytes < 1 or self.error_log_interval_s < 0:
+            raise ValueError("max_input_pixels, max_input_bytes must be >= 1, error_log_interval_s >= 0")
 
 
 @dataclass(frozen=True)
@@ -63,6 +75,33 @@ class ForwarderStats:
     forwarded: dict[str, int] = field(default_factory=dict)
     stale_triggers: int = 0  # a trigger found no fresh frame (and none came within trigger_wait_ms)
     duplicate_triggers: int = 0  # the latest frame had already been forwarded
+
+
+class ErrorTally:
+    """Counts rejected inputs by kind, and rate-limits their log lines: the first of each kind is
+    logged at once, then at most one per interval; the rest are counted as unlogged, never lost."""
+
+    def __init__(self, interval_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self._interval_s = interval_s
+        self._clock = clock
+        self._last_logged: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+        self.unlogged = 0
+
+    def record(self, kind: str) -> bool:
+        """Count one error of `kind`; True when it should be logged."""
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        now = self._clock()
+        last = self._last_logged.get(kind)
+        if last is not None and now - last < self._interval_s:
+            self.unlogged += 1
+            return False
+        self._last_logged[kind] = now
+        return True
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
 
 
 class FrameForwarder(Generic[FrameT]):

@@ -1,12 +1,15 @@
 """command_processor: response_cmd text -> validated robot commands on arm/behavior/wake topics.
 
 Every command found gets a CommandVerdict on command_status (accepted or refused, with the reason).
-All the logic is in by_your_command.commands; this node only moves messages.
+All the logic is in by_your_command.commands; this node only moves messages. The processor bounds
+the work per message (an oversize message costs one linear scan), so a burst of junk cannot keep
+a later `stop` waiting; refusals are counted and their log lines rate-limited.
 """
 
 from __future__ import annotations
 
 import time
+import traceback
 
 from by_your_command_msgs.msg import CommandVerdict
 from rclpy.node import Node
@@ -18,6 +21,8 @@ from by_your_command.commands.routing import Destination
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import RELIABLE
 from by_your_command.nodes._runtime import run_node
+
+REFUSAL_LOG_INTERVAL_S = 1.0  # a flood of junk must not become a flood of log lines (all are counted)
 
 
 class CommandProcessorNode(Node):
@@ -34,14 +39,28 @@ class CommandProcessorNode(Node):
         self.create_subscription(String, self.config.input_topic, self.on_text, RELIABLE)
         self.accepted = 0
         self.refused = 0
+        self.internal_errors = 0
         self.get_logger().info(
             f"listening on {self.resolve_topic_name(self.config.input_topic)}; "
             f"{len(self.processor.grammar.vocabulary.commands)} commands, "
-            f"allow-list {self.config.allowed_commands or 'all'}, min interval {self.config.min_interval_s} s"
+            f"allow-list {self.config.allowed_commands or 'all'}, "
+            f"min interval {self.config.min_interval_s} s, "
+            f"at most {self.config.max_message_chars} characters and "
+            f"{self.config.max_commands_per_message} pieces per message"
         )
 
     def on_text(self, message: String) -> None:
-        for verdict in self.processor.process(message.data, time.monotonic()):
+        try:
+            self.process_text(message.data)
+        except Exception as error:  # a bug, not bad input: an escaping exception would end the node
+            self.internal_errors += 1
+            self.get_logger().error(
+                f"internal error on a response_cmd message ({self.internal_errors} so far): {error!r}\n"
+                + traceback.format_exc(limit=5)
+            )
+
+    def process_text(self, text: str) -> None:
+        for verdict in self.processor.process(text, time.monotonic()):
             topic = ""
             reason = verdict.reason
             accepted = verdict.accepted
@@ -71,8 +90,11 @@ class CommandProcessorNode(Node):
             self.get_logger().info(f"{verdict.command} -> {topic}")
         else:
             self.refused += 1
+            stats = self.processor.stats
             self.get_logger().warning(
-                f"refused {verdict.raw[:80]!r}: {reason} ({self.refused} refused, {self.accepted} accepted)"
+                f"refused {verdict.raw[:80]!r}: {reason} ({self.refused} refused, {self.accepted} accepted, "
+                f"{stats.oversize_messages} of {stats.messages} messages oversize)",
+                throttle_duration_sec=REFUSAL_LOG_INTERVAL_S,
             )
 
 

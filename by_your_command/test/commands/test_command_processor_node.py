@@ -15,6 +15,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from std_msgs.msg import Bool, String
 
+from by_your_command.commands.processor import SUPERSEDED
+
 RELIABLE = QoSProfile(depth=100, reliability=QoSReliabilityPolicy.RELIABLE)
 GRUNT1_CONFIG = REPO_ROOT / "by_your_command" / "config" / "command_processor_grunt1.yaml"
 
@@ -124,7 +126,7 @@ def test_safety_layer_in_the_graph(probe: Probe, ros_namespace: str) -> None:
     args = ("-p", "allowed_commands:=[lookup]", "-p", "min_interval_s:=60.0")
     with start_processor(ros_namespace, *args) as process:
         wait_connected(probe, process, subscriptions)
-        probe.send("lookup, lookup, reach, stop, stop")
+        probe.send("stop, stop, lookup, lookup, reach")
 
         def five_verdicts() -> bool:
             probe.spin()
@@ -132,14 +134,14 @@ def test_safety_layer_in_the_graph(probe: Probe, ros_namespace: str) -> None:
 
         wait_for(five_verdicts, timeout=10, what="5 verdicts")
     assert [(v.command, v.accepted) for v in probe.verdicts()] == [
+        ("stop", True),
+        ("stop", True),
         ("lookup", True),
         ("lookup", False),
         ("reach", False),
-        ("stop", True),
-        ("stop", True),
     ]
-    assert "rate limited" in probe.verdicts()[1].reason
-    assert "allow-list" in probe.verdicts()[2].reason
+    assert "rate limited" in probe.verdicts()[3].reason
+    assert "allow-list" in probe.verdicts()[4].reason
 
 
 @pytest.mark.ros
@@ -161,3 +163,88 @@ def test_grunt1_example_config_publishes_on_absolute_robot_topics(probe: Probe, 
         wait_for(routed, timeout=10, what="/grunt1 outputs")
     assert probe.data("arm") == ["lookout"]
     assert probe.data("behavior") == ["track@cup"]
+
+
+def wait_verdicts(probe: Probe, process: Any, count: int) -> list[CommandVerdict]:
+    def arrived() -> bool:
+        assert process.poll() is None, "command_processor died"
+        probe.spin()
+        return len(probe.verdicts()) >= count
+
+    wait_for(arrived, timeout=30, what=f"{count} verdicts")
+    return probe.verdicts()
+
+
+@pytest.mark.ros
+def test_oversize_junk_gets_one_verdict_each_and_a_following_stop_is_answered(
+    probe: Probe, ros_namespace: str
+) -> None:
+    subscriptions = [
+        listen(probe, "behavior_command", String),
+        listen(probe, "arm_preset", String),
+        listen(probe, "command_status", CommandVerdict),
+    ]
+    junk = ["lookup, " * 131_072, "a," * 500_000, "command:" * 125_000]  # about 1 MB each
+    with start_processor(ros_namespace) as process:
+        wait_connected(probe, process, subscriptions)
+        for message in junk:
+            probe.send(message)
+        probe.send("stop")
+        verdicts = wait_verdicts(probe, process, len(junk) + 1)
+        wait_for(lambda: probe.spin() or probe.data("behavior_command"), timeout=10, what="stop routed")
+    for verdict, message in zip(verdicts[: len(junk)], junk, strict=True):
+        assert not verdict.accepted and verdict.topic == ""
+        assert verdict.reason == f"message of {len(message)} characters is longer than 4096: not examined"
+        assert len(verdict.raw) <= 201  # the megabyte is not echoed back
+    assert [(v.command, v.accepted) for v in verdicts[len(junk) :]] == [("stop", True)]
+    assert probe.data("behavior_command") == ["stop"] and probe.data("arm_preset") == []
+
+
+@pytest.mark.ros
+def test_a_stop_inside_a_long_message_is_routed_first(probe: Probe, ros_namespace: str) -> None:
+    subscriptions = [
+        listen(probe, "behavior_command", String),
+        listen(probe, "arm_preset", String),
+        listen(probe, "command_status", CommandVerdict),
+    ]
+    chatter = ", ".join(f"now I will think about item {index}" for index in range(40))
+    long_message = f"reach, {chatter}, stop, lookup"  # the stop is beyond the 20 pieces parsed
+    huge_message = "lookup\n" + "x " * 400_000 + "\nSTOP!\n" + "y " * 100_000  # oversize, stop inside
+    with start_processor(ros_namespace, "-p", "min_interval_s:=0.0") as process:
+        wait_connected(probe, process, subscriptions)
+        probe.send(long_message)
+        probe.send(huge_message)
+        probe.send("pan@left, stop, tenhut")
+        verdicts = wait_verdicts(probe, process, 22 + 2 + 3)
+        wait_for(lambda: probe.spin() or len(probe.data("behavior_command")) >= 3, timeout=10, what="stops")
+    first, second, third = verdicts[:22], verdicts[22:24], verdicts[24:]
+    assert (first[0].command, first[0].accepted) == ("stop", True)  # before anything else
+    assert (first[1].command, first[1].accepted, first[1].reason) == ("reach", False, SUPERSEDED)
+    assert not any(v.accepted for v in first[1:]) and "not examined" in first[-1].reason
+    assert [(v.command, v.accepted) for v in second] == [("stop", True), ("", False)]
+    assert "not examined" in second[1].reason
+    assert [(v.command, v.accepted) for v in third] == [("stop", True), ("pan@left", False), ("tenhut", True)]
+    assert probe.data("behavior_command") == ["stop", "stop", "stop"]
+    assert probe.data("arm_preset") == ["tenhut"]  # nothing the stops superseded ever moved the arm
+
+
+@pytest.mark.ros
+def test_an_internal_error_is_logged_and_counted_and_the_node_keeps_listening(probe: Probe) -> None:
+    from by_your_command.nodes.command_processor import CommandProcessorNode
+
+    node = CommandProcessorNode()  # in this process, in the probe's context, called directly
+    try:
+        healthy = node.processor.process
+
+        def broken(message: str, now: float) -> list[Any]:
+            raise RuntimeError("a bug in the processor")
+
+        node.processor.process = broken  # type: ignore[method-assign]
+        (subscription,) = node.subscriptions
+        subscription.callback(String(data="stop"))  # unguarded, this would end the executor's spin
+        assert node.internal_errors == 1
+        node.processor.process = healthy  # type: ignore[method-assign]
+        subscription.callback(String(data="stop"))
+        assert (node.accepted, node.refused) == (1, 0)
+    finally:
+        node.destroy_node()

@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from by_your_command.commands import grammar as grammar_module
 from by_your_command.commands.grammar import CommandGrammar
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
 
@@ -186,3 +192,137 @@ def test_valid_commands_survive_llm_noise(
     assert results == [normalised(command)[0] for command in commands]
     for text in results:
         assert text is not None and normalised(text) == [text]
+
+
+# -- hostile input: the work per message is bounded --------------------------------------------
+
+
+@dataclass
+class Work:
+    """What the grammar did: characters its regexes were given, pieces parsed, cleaning rounds."""
+
+    regex_chars: int = 0
+    pieces_parsed: int = 0
+    peel_rounds: int = 0
+
+
+class CountingPattern:
+    """Wraps a compiled regex and adds the length of the text span each call is given to `work`."""
+
+    def __init__(self, pattern: re.Pattern[str], work: Work, counts_rounds: bool) -> None:
+        self._pattern, self._work, self._counts_rounds = pattern, work, counts_rounds
+
+    def __getattr__(self, name: str) -> Any:
+        method = getattr(self._pattern, name)
+        if not callable(method):
+            return method
+
+        def counted(*args: Any, **kwargs: Any) -> Any:
+            text = max((arg for arg in args if isinstance(arg, str)), key=len, default="")
+            bounds = [arg for arg in args if isinstance(arg, int)]
+            start = bounds[0] if bounds else 0
+            end = bounds[1] if len(bounds) > 1 else len(text)
+            self._work.regex_chars += max(0, min(end, len(text)) - start)
+            if self._counts_rounds and name == "sub":
+                self._work.peel_rounds += 1
+            return method(*args, **kwargs)
+
+        return counted
+
+
+@pytest.fixture
+def work(monkeypatch: pytest.MonkeyPatch) -> Iterator[Work]:
+    done = Work()
+    for name, value in list(vars(grammar_module).items()):
+        if isinstance(value, re.Pattern):
+            # _PREFIX is used only to peel one piece: its calls count the cleaning rounds.
+            monkeypatch.setattr(grammar_module, name, CountingPattern(value, done, name == "_PREFIX"))
+    parse_one = CommandGrammar.parse_one
+
+    def counted_parse_one(self: CommandGrammar, raw: str) -> Any:
+        done.pieces_parsed += 1
+        return parse_one(self, raw)
+
+    monkeypatch.setattr(CommandGrammar, "parse_one", counted_parse_one)
+    yield done
+
+
+MEGABYTE = 1_000_000
+# Each repeats a fragment the grammar reacts to: a prefix it peels, a separator, a bullet, a
+# sentence end, a would-be stop, an '@', fences, JSON brackets.
+PATHOLOGICAL = {
+    "prefixes": "command:",
+    "prefixes with spaces": "PRESET : ",
+    "separators": "a,",
+    "bullets": "- ",
+    "numbered bullets": "1. ",
+    "sentence ends": "x. ",
+    "stops with modifiers": "stop@x, ",
+    "stop words": "stop stop ",
+    "stop substrings": "stopstop",
+    "backticks": "`",
+    "newlines": "\n",
+    "at signs": "@",
+    "digits": "9",
+    "brackets": "[{",
+    "bold": "**",
+}
+# Work allowed, whatever the message: a few passes over the text, plus a constant for the pieces
+# parsed (at most 20, and a few dozen looked at for a stop in what is not parsed) and the few
+# rounds of cleaning each. Generous on purpose: unbounded parsing exceeds them by orders of magnitude.
+CONSTANT_WORK = 200_000
+MAX_PIECES_PARSED = 100
+MAX_PEEL_ROUNDS = 10
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("name", sorted(PATHOLOGICAL))
+@pytest.mark.parametrize("size", [4096, MEGABYTE])
+def test_pathological_messages_parse_in_bounded_work(name: str, size: int, work: Work) -> None:
+    message = (PATHOLOGICAL[name] * (size // len(PATHOLOGICAL[name]) + 1))[:size]
+    results = GRAMMAR.parse_message(message)
+    assert work.regex_chars <= 6 * len(message) + CONSTANT_WORK, work
+    assert work.pieces_parsed <= MAX_PIECES_PARSED, work
+    assert work.peel_rounds <= MAX_PEEL_ROUNDS * work.pieces_parsed, work
+    assert results and all(parsed.command is not None or parsed.reason for parsed in results)
+    assert all(len(parsed.raw) <= 4096 for parsed in results)
+    if size == MEGABYTE:  # refused unparsed, with at most a stop rescued from it
+        assert "not examined" in results[-1].reason and len(results) <= 2
+
+
+@pytest.mark.unit
+def test_a_heavily_decorated_piece_is_cleaned_a_bounded_number_of_times(work: Work) -> None:
+    (parsed,) = GRAMMAR.parse_message("command: " * 30 + "lookup")  # 276 characters, one piece
+    assert parsed.command is None and work.peel_rounds <= MAX_PEEL_ROUNDS
+    (too_long,) = GRAMMAR.parse_message("command:" * 500)
+    assert "longer than 80 characters" in too_long.reason and len(too_long.raw) <= 201
+
+
+@pytest.mark.unit
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.sampled_from(sorted(PATHOLOGICAL.values()) + ["stop", "lookup", " ", "pan@left"]), max_size=64
+    ),
+    st.integers(1, 200),
+)
+def test_adversarial_mixtures_parse_in_bounded_work(fragments: list[str], repeat: int) -> None:
+    message = "".join(fragments) * repeat
+    with pytest.MonkeyPatch.context() as patch:
+        done = Work()
+        for name, value in list(vars(grammar_module).items()):
+            if isinstance(value, re.Pattern):
+                patch.setattr(grammar_module, name, CountingPattern(value, done, name == "_PREFIX"))
+        results = GRAMMAR.parse_message(message)
+    assert done.regex_chars <= 6 * len(message) + CONSTANT_WORK, (len(message), done)
+    assert done.peel_rounds <= MAX_PEEL_ROUNDS * MAX_PIECES_PARSED
+    assert results
+
+
+@pytest.mark.unit
+def test_no_grammar_regex_has_nested_quantifiers() -> None:
+    # Catastrophic backtracking needs a quantified group that itself contains a quantifier.
+    nested = re.compile(r"\((?:[^()\\]|\\.)*[*+}](?:[^()\\]|\\.)*\)[*+{]")
+    for name, value in vars(grammar_module).items():
+        if isinstance(value, re.Pattern):
+            assert not nested.search(value.pattern), (name, value.pattern)
