@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
+from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.signal import butter, sosfilt
 
-from by_your_command.audio.pcm import Int16Array, resample, to_mono
+from by_your_command.audio.pcm import Int16Array, StampedPcm, StampedResampler, float_to_int16, to_mono
 
 if TYPE_CHECKING:
     from livekit.rtc import AudioFrame
@@ -24,6 +27,14 @@ _LOG = logging.getLogger(__name__)
 NS_PER_S = 1_000_000_000
 APM_FRAME_MS = 10  # WebRTC's audio processing works on exactly 10 ms frames
 APM_RATES = (8000, 16000, 32000, 48000)
+DELAY_PROBE_MS = 600  # probe length for measuring AEC3's own delay (once, at start-up)
+DELAY_SEARCH_MS = 50  # AEC3 delays measured 8-17 ms depending on rate and NS
+GUARD_REFERENCE_FLOOR_DB = -60.0  # reference quieter than this leaves no echo worth guarding
+GUARD_INITIAL_COUPLING_DB = 0.0  # before learning: residual echo as loud as the reference
+GUARD_STEP_DB = 0.1  # quantile tracker: step down per 10 ms frame (10 dB/s)
+GUARD_QUANTILE = 0.95  # ... and up by STEP * q / (1 - q): settles where 95 % of frames are below
+GUARD_AEC_HOLD_MS = 30  # AEC3 lets the room's tail through 40-170 ms after the far end falls silent
+GUARD_ATTENUATION = 0.01  # -40 dB for frames the guard holds back
 
 
 class EchoMode(str, enum.Enum):
@@ -48,9 +59,25 @@ class EchoConfig:
         metadata={"help": "aec: hold mic audio up to this long for its reference to arrive (adds latency)"},
     )
     aec_noise_suppression: bool = field(default=False, metadata={"help": "aec: also run WebRTC NS"})
-    aec_high_pass_filter: bool = field(default=True, metadata={"help": "aec: also run the HPF"})
+    stamp_tolerance_ms: int = field(
+        default=20,
+        metadata={"help": "aec: a mic or reference stamp this far off its stream's timeline restarts it"},
+    )
     reference_history_ms: int = field(
         default=2000, metadata={"help": "aec: how much played audio to keep for alignment"}
+    )
+    echo_guard: bool = field(
+        default=True, metadata={"help": "aec: mute residual echo while the robot speaks (see docs)"}
+    )
+    echo_guard_margin_db: float = field(
+        default=6.0, metadata={"help": "aec: how far above residual echo the user must be to pass"}
+    )
+    echo_guard_release_db_per_s: float = field(
+        default=50.0,
+        metadata={"help": "aec: how fast the guard's reference envelope decays (slower than room reverb)"},
+    )
+    echo_guard_hangover_ms: int = field(
+        default=200, metadata={"help": "aec: once the user is heard over the robot, pass this long"}
     )
 
     def __post_init__(self) -> None:
@@ -67,6 +94,16 @@ class EchoConfig:
             raise ValueError(f"aec_stream_delay_ms must be >= 0, got {self.aec_stream_delay_ms}")
         if self.aec_reference_wait_ms < 0:
             raise ValueError(f"aec_reference_wait_ms must be >= 0, got {self.aec_reference_wait_ms}")
+        if self.stamp_tolerance_ms < 1:
+            raise ValueError(f"stamp_tolerance_ms must be >= 1, got {self.stamp_tolerance_ms}")
+        if self.echo_guard_margin_db < 0:
+            raise ValueError(f"echo_guard_margin_db must be >= 0, got {self.echo_guard_margin_db}")
+        if self.echo_guard_hangover_ms < 0:
+            raise ValueError(f"echo_guard_hangover_ms must be >= 0, got {self.echo_guard_hangover_ms}")
+        if self.echo_guard_release_db_per_s <= 0:
+            raise ValueError(
+                f"echo_guard_release_db_per_s must be > 0, got {self.echo_guard_release_db_per_s}"
+            )
         if self.reference_history_ms < 100:
             raise ValueError(f"reference_history_ms must be >= 100, got {self.reference_history_ms}")
 
@@ -91,8 +128,13 @@ class EchoStats:
     samples_gated: int = 0
     blocks_rejected: int = 0  # bad input (wrong rate/channels), reported by the caller
     reference_blocks: int = 0
+    reference_rejected: int = 0  # bad reference input, reported by the caller
     reference_samples_late: int = 0  # reference that arrived for audio already processed
+    reference_restarts: int = 0  # reference stamps off their timeline (a gap or jump back)
+    mic_resyncs: int = 0  # mic stamps off the timeline (lost block, jump back): timeline restarted
     aec_frames: int = 0
+    aec_frames_unreferenced: int = 0  # released after the full wait, their reference still missing
+    guard_frames_muted: int = 0  # aec frames the echo guard held back as residual echo
 
 
 class HalfDuplexGate:
@@ -165,7 +207,12 @@ class ReferenceTimeline:
 
 
 class Aec3:
-    """WebRTC AEC3 through livekit's AudioProcessingModule, fed one 10 ms frame pair at a time."""
+    """WebRTC AEC3 through livekit's AudioProcessingModule, fed one 10 ms frame pair at a time.
+
+    AEC3 always runs WebRTC's high-pass filter (~80 Hz) on the mic: its config enforces it, and
+    livekit exposes no switch, so there is no `high_pass_filter` option in aec mode. Its output
+    lags its input by `delay_samples` (framing inside AEC3, plus NS when on), measured once here.
+    """
 
     def __init__(self, sample_rate: int, config: EchoConfig) -> None:
         if sample_rate not in APM_RATES:
@@ -174,21 +221,26 @@ class Aec3:
 
         self._rtc = rtc
         self._rate = sample_rate
+        self._noise_suppression = config.aec_noise_suppression
         self.frame_samples = sample_rate * APM_FRAME_MS // 1000
         self._delay_ms = config.aec_stream_delay_ms
-        self._apm = rtc.AudioProcessingModule(
-            echo_cancellation=True,
-            noise_suppression=config.aec_noise_suppression,
-            high_pass_filter=config.aec_high_pass_filter,
+        self._apm = self._new_apm()
+        self.delay_samples = self._measure_delay()
+
+    def _new_apm(self) -> Any:
+        return self._rtc.AudioProcessingModule(
+            echo_cancellation=True, noise_suppression=self._noise_suppression, high_pass_filter=True
         )
 
     def process(self, mic: Int16Array, reference: Int16Array) -> Int16Array:
         """Cancel the echo of `reference` (played meanwhile) from one 10 ms `mic` frame."""
-        far = self._frame(reference)
-        self._apm.process_reverse_stream(far)
+        return self._process(self._apm, mic, reference)
+
+    def _process(self, apm: Any, mic: Int16Array, reference: Int16Array) -> Int16Array:
+        apm.process_reverse_stream(self._frame(reference))
         near = self._frame(mic)
-        self._apm.set_stream_delay_ms(self._delay_ms)
-        self._apm.process_stream(near)
+        apm.set_stream_delay_ms(self._delay_ms)
+        apm.process_stream(near)
         cleaned: Int16Array = np.frombuffer(near.data, dtype=np.int16).copy()
         return cleaned
 
@@ -197,9 +249,114 @@ class Aec3:
         frame: AudioFrame = self._rtc.AudioFrame(data, self._rate, 1, self.frame_samples)
         return frame
 
+    def _measure_delay(self) -> int:
+        """Lag (samples) of a throwaway AEC3 with this configuration: the lag of the best match
+        between a speech-band noise probe and what comes out (nothing is played meanwhile)."""
+        apm = self._new_apm()
+        step = self.frame_samples
+        rng = np.random.default_rng(0)
+        frames = DELAY_PROBE_MS // APM_FRAME_MS
+        band = butter(4, [300, 3000], btype="bandpass", fs=self._rate, output="sos")
+        probe = float_to_int16(0.3 * sosfilt(band, rng.standard_normal(frames * step)))
+        silence = np.zeros(step, dtype=np.int16)
+        out = np.concatenate(
+            [self._process(apm, probe[k : k + step], silence) for k in range(0, len(probe), step)]
+        ).astype(np.float64)
+        max_lag = DELAY_SEARCH_MS * self._rate // 1000
+        tail = probe[len(probe) // 2 : len(probe) - max_lag].astype(np.float64)
+        lo = len(probe) // 2
+        scores = [float(np.dot(out[lo + lag : lo + lag + len(tail)], tail)) for lag in range(max_lag)]
+        lag = int(np.argmax(scores))
+        if scores[lag] <= 0.5 * float(np.dot(tail, tail)):
+            _LOG.warning("could not measure the AEC's own delay (no clear match): stamps may be late")
+            return 0
+        return lag
+
+
+def frame_level_db(pcm: Int16Array) -> float:
+    """Power of a frame in dB relative to full scale (-120 for digital silence)."""
+    power = float(np.mean(np.square(pcm, dtype=np.float64))) / (32768.0 * 32768.0)
+    return 10.0 * math.log10(power) if power > 1e-12 else -120.0
+
+
+class QuantileTracker:
+    """Running estimate of a quantile of a stream of dB values (steps, no history kept)."""
+
+    def __init__(self, quantile: float, step_db: float, initial_db: float) -> None:
+        self.value = initial_db
+        self._down = step_db
+        self._up = step_db * quantile / (1.0 - quantile)
+
+    def update(self, x: float) -> None:
+        self.value += self._up if x > self.value else -self._down
+
+
+class EchoGuard:
+    """Keeps residual echo (what AEC3 leaves of the robot's voice) from reaching the VAD.
+
+    Reference envelope: a peak hold decaying `release_db_per_s`, slower than a room's reverb.
+    While it is above GUARD_REFERENCE_FLOOR_DB, an output frame passes only if it is `margin_db`
+    above the echo expected at this envelope:
+    - while the robot is sounding (reference above the floor in the last GUARD_AEC_HOLD_MS):
+      the residual AEC3 leaves, a running GUARD_QUANTILE quantile of output-minus-envelope over
+      frames that did not pass (strict at first, GUARD_INITIAL_COUPLING_DB, while AEC3 converges);
+    - after that, in the room's tail: AEC3 stops suppressing once the far end is silent, so the
+      tail comes through whole; expected is then the raw echo, the same quantile of
+      mic-minus-envelope (the speaker-to-mic coupling).
+    Once a frame passes, frames pass for `hangover_ms`, so the user's quieter syllables go too.
+    """
+
+    def __init__(self, config: EchoConfig, frame_ms: int) -> None:
+        self.margin_db = config.echo_guard_margin_db
+        self.hangover_frames = config.echo_guard_hangover_ms // frame_ms
+        self.release_db = config.echo_guard_release_db_per_s * frame_ms / 1000
+        self.hold_frames = GUARD_AEC_HOLD_MS // frame_ms
+        self.envelope_db = -120.0
+        self.residual = QuantileTracker(GUARD_QUANTILE, GUARD_STEP_DB, GUARD_INITIAL_COUPLING_DB)
+        self.coupling = QuantileTracker(GUARD_QUANTILE, GUARD_STEP_DB, GUARD_INITIAL_COUPLING_DB)
+        self._quiet_frames = self.hold_frames  # frames since the reference was last above the floor
+        self._open_frames = 0
+
+    def passes(self, mic: Int16Array, output: Int16Array, reference: Int16Array) -> bool:
+        """Whether this output frame (from `mic`, while `reference` played) may go to the VAD."""
+        reference_db = frame_level_db(reference)
+        self.envelope_db = max(self.envelope_db - self.release_db, reference_db)
+        self._quiet_frames = 0 if reference_db >= GUARD_REFERENCE_FLOOR_DB else self._quiet_frames + 1
+        if self.envelope_db < GUARD_REFERENCE_FLOOR_DB:  # nothing (audible) played lately
+            self._open_frames = 0
+            return True
+        relation = frame_level_db(output) - self.envelope_db
+        sounding = self._quiet_frames < self.hold_frames
+        expected = self.residual.value if sounding else max(self.residual.value, self.coupling.value)
+        if relation > expected + self.margin_db:
+            self._open_frames = self.hangover_frames + 1
+        elif sounding:  # learn how loud echo gets here, from frames echo dominates
+            self.residual.update(relation)
+            self.coupling.update(frame_level_db(mic) - self.envelope_db)
+        if self._open_frames > 0:
+            self._open_frames -= 1
+            return True
+        return False
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """APM input samples from `first` on were captured from `start_ns` on (filler: padding)."""
+
+    first: int
+    start_ns: int
+    filler: bool = False
+
 
 class EchoController:
-    """Turns the raw mic stream into the stream the VAD may hear."""
+    """Turns the raw mic stream into the stream the VAD may hear.
+
+    aec mode: mic and reference are brought to `sample_rate` (stateful resamplers, one per
+    stream) and laid on one clock by their stamps. Mic audio goes through AEC3 in 10 ms frames:
+    at once while nothing plays or its reference is in, else after up to aec_reference_wait_ms.
+    Every output block is stamped with the capture time of its first sample (AEC3's own delay
+    taken off), and a jump in the mic stamps restarts the timeline there instead of shifting it.
+    """
 
     def __init__(self, config: EchoConfig) -> None:
         self.config = config
@@ -207,78 +364,175 @@ class EchoController:
         self.sample_rate = sample_rate = config.sample_rate
         self.stats = EchoStats()
         self._gate = HalfDuplexGate(config.gate_tail_ms)
+        self._speaking = False
         self._aec: Aec3 | None = None
-        self._reference: ReferenceTimeline | None = None
+        self._reference = ReferenceTimeline(sample_rate, config.reference_history_ms)
+        tolerance_ns = config.stamp_tolerance_ms * 1_000_000
+        self._mic_in = StampedResampler(sample_rate, tolerance_ns)
+        self._reference_in = StampedResampler(sample_rate, tolerance_ns)
+        self._wait_samples = config.aec_reference_wait_ms * sample_rate // 1000
+        self._wait_ns = config.aec_reference_wait_ms * 1_000_000
         self._pending = np.zeros(0, dtype=np.int16)  # mic samples not yet through the AEC
-        self._pending_start_ns = 0
-        self._wait_samples = config.aec_reference_wait_ms * config.sample_rate // 1000
+        self._fed = 0  # mic samples fed to AEC3 so far (index of _pending[0])
+        self._out_index = 0  # AEC3 output samples so far
+        self._segments: deque[_Segment] = deque()
+        self._processed_until_ns = 0  # capture time up to which mic audio went through AEC3
+        self._guard: EchoGuard | None = None
         if self.mode is EchoMode.AEC:
             self._aec = Aec3(sample_rate, config)
-            self._reference = ReferenceTimeline(sample_rate, config.reference_history_ms)
+            if config.echo_guard:
+                self._guard = EchoGuard(config, APM_FRAME_MS)
+
+    @property
+    def reference(self) -> ReferenceTimeline:
+        """The played audio laid out on the clock, at `sample_rate` (aec mode)."""
+        return self._reference
+
+    @property
+    def aec_delay_samples(self) -> int:
+        return self._aec.delay_samples if self._aec is not None else 0
 
     def set_assistant_speaking(self, speaking: bool, now_ns: int) -> None:
         self._gate.set_speaking(speaking, now_ns)
+        self._speaking = speaking
+        if not speaking:  # the reply is over: the reference resampler's held-back tail is final
+            for piece in self._reference_in.flush():
+                self._add_reference_piece(piece)
 
     def add_reference(self, pcm: Int16Array, sample_rate: int, channels: int, start_ns: int) -> None:
-        """Audio the player actually played, starting at `start_ns` (ignored unless mode is aec)."""
-        if self._reference is None:
+        """Audio the player actually played, starting at `start_ns` (ignored unless mode is aec).
+        Raises ValueError on bad audio (channels, length, rate)."""
+        if self._aec is None:
             return
         mono = to_mono(pcm, channels)
-        if sample_rate != self.sample_rate:
-            mono = resample(mono, sample_rate, self.sample_rate)
         self.stats.reference_blocks += 1
-        if self._pending_start_ns and start_ns < self._pending_start_ns:  # that mic audio is gone
-            late = (self._pending_start_ns - start_ns) * self.sample_rate // NS_PER_S
-            self.stats.reference_samples_late += int(min(late, len(mono)))
-        self._reference.add(mono, start_ns)
+        for piece in self._reference_in.push(mono, sample_rate, start_ns):
+            self._add_reference_piece(piece)
+        self.stats.reference_restarts = self._reference_in.restarts
 
-    def process(self, pcm: Int16Array, start_ns: int, now_ns: int) -> Block | None:
-        """One mic block captured from `start_ns` on; returns what to forward (None: nothing now)."""
+    def _add_reference_piece(self, piece: StampedPcm) -> None:
+        if piece.start_ns < self._processed_until_ns:  # that mic audio has gone out without it
+            late = (self._processed_until_ns - piece.start_ns) * self.sample_rate // NS_PER_S
+            self.stats.reference_samples_late += int(min(late, len(piece.pcm)))
+        self._reference.add(piece.pcm, piece.start_ns)
+
+    def process(
+        self, pcm: Int16Array, start_ns: int, now_ns: int, sample_rate: int | None = None
+    ) -> list[Block]:
+        """One mono mic block captured from `start_ns` on (at `sample_rate`, default the
+        configured rate); returns the blocks to forward now, in order (often one, maybe none).
+        Raises ValueError on a sample rate that cannot be resampled."""
         self.stats.blocks_in += 1
+        samples = np.asarray(pcm, dtype=np.int16)
         if self.mode is EchoMode.EXTERNAL:
-            return self._out(Block(np.asarray(pcm, dtype=np.int16), start_ns))
+            return self._out([Block(samples, start_ns)])
         if self.mode is EchoMode.GATE:
             if not self._gate.is_open(now_ns):
                 self.stats.blocks_gated += 1
-                self.stats.samples_gated += len(pcm)
-                return None
-            return self._out(Block(np.asarray(pcm, dtype=np.int16), start_ns))
-        return self._cancel(np.asarray(pcm, dtype=np.int16), start_ns)
+                self.stats.samples_gated += len(samples)
+                return []
+            return self._out([Block(samples, start_ns)])
+        released: list[Block] = []
+        for piece in self._mic_in.push(samples, sample_rate or self.sample_rate, start_ns):
+            if piece.restart:
+                released += self._restart_timeline(piece.start_ns)
+            self._pending = np.concatenate([self._pending, piece.pcm])
+        self.stats.mic_resyncs = self._mic_in.restarts
+        return self._out(released + self._release(force=False))
 
-    def _cancel(self, pcm: Int16Array, start_ns: int) -> Block | None:
-        """Run whole 10 ms frames through AEC3 once their reference is in (the player announces
-        a block when it starts playing it), or once they have waited aec_reference_wait_ms."""
-        if len(self._pending) == 0:
-            self._pending_start_ns = start_ns
-        self._pending = np.concatenate([self._pending, pcm])
-        return self.drain()
+    def drain(self) -> list[Block]:
+        """aec: the mic audio that can go out now (call after add_reference or
+        set_assistant_speaking: a reference that arrived after its mic audio releases it)."""
+        return self._out(self._release(force=False))
 
-    def drain(self) -> Block | None:
-        """aec: the mic audio that can go out now (call after add_reference: a reference that
-        arrived after its mic audio releases it)."""
-        if self._aec is None or self._reference is None or len(self._pending) == 0:
-            return None
+    def _restart_timeline(self, start_ns: int) -> list[Block]:
+        """The mic stream restarts at `start_ns`: what is pending of the old one goes through
+        AEC3 now (its last frame padded with filler) and the new one starts a segment."""
+        released: list[Block] = []
+        if len(self._pending):
+            pad = -len(self._pending) % self.frame_samples
+            if pad:
+                end = self._fed + len(self._pending)
+                self._segments.append(_Segment(end, self._input_time(end), filler=True))
+                self._pending = np.concatenate([self._pending, np.zeros(pad, dtype=np.int16)])
+            released = self._release(force=True)
+        self._segments.append(_Segment(self._fed, start_ns))
+        return released
+
+    @property
+    def frame_samples(self) -> int:
+        return self._aec.frame_samples if self._aec is not None else 0
+
+    def _input_time(self, index: int) -> int:
+        """Capture time of AEC3 input sample `index` (continuing the segment it falls in)."""
+        segment = self._segments[-1]
+        for candidate in reversed(self._segments):
+            segment = candidate
+            if candidate.first <= index:
+                break
+        return segment.start_ns + (index - segment.first) * NS_PER_S // self.sample_rate
+
+    def _reference_settled(self, frame_start_ns: int, frame_end_ns: int) -> bool:
+        """True when the reference for this mic frame is in, or none is coming: nothing plays
+        and the last reference ended more than aec_reference_wait_ms before the frame."""
+        if self._reference.end_ns >= frame_end_ns:
+            return True
+        return not self._speaking and frame_start_ns >= self._reference.end_ns + self._wait_ns
+
+    def _release(self, force: bool) -> list[Block]:
+        if self._aec is None or len(self._pending) == 0:
+            return []
         step = self._aec.frame_samples
         ready = 0
         while ready + step <= len(self._pending):
-            frame_end_ns = self._pending_start_ns + (ready + step) * NS_PER_S // self.sample_rate
-            waited = len(self._pending) - (ready + step)
-            if self._reference.end_ns < frame_end_ns and waited < self._wait_samples:
-                break
+            frame_start = self._input_time(self._fed + ready)
+            frame_end = frame_start + step * NS_PER_S // self.sample_rate
+            waited = len(self._pending) - (ready + step)  # mic samples captured after this frame
+            if not force and not self._reference_settled(frame_start, frame_end):
+                if waited < self._wait_samples:
+                    break
+                self.stats.aec_frames_unreferenced += 1
             ready += step
         if ready == 0:
-            return None
-        out = np.empty(ready, dtype=np.int16)
-        block_start = self._pending_start_ns
+            return []
+        processed = np.empty(ready, dtype=np.int16)
         for offset in range(0, ready, step):
-            frame_start = block_start + offset * NS_PER_S // self.sample_rate
+            frame_start = self._input_time(self._fed + offset)
             reference = self._reference.read(frame_start, step)
-            out[offset : offset + step] = self._aec.process(self._pending[offset : offset + step], reference)
+            cleaned = self._aec.process(self._pending[offset : offset + step], reference)
+            mic = self._pending[offset : offset + step]
+            if self._guard is not None and not self._guard.passes(mic, cleaned, reference):
+                cleaned = (cleaned * GUARD_ATTENUATION).astype(np.int16)
+                self.stats.guard_frames_muted += 1
+            processed[offset : offset + step] = cleaned
             self.stats.aec_frames += 1
         self._pending = self._pending[ready:].copy()
-        self._pending_start_ns = block_start + ready * NS_PER_S // self.sample_rate
-        return self._out(Block(out, block_start))
+        self._fed += ready
+        self._processed_until_ns = self._input_time(self._fed)
+        return self._stamp_output(processed)
 
-    def _out(self, block: Block) -> Block:
-        self.stats.blocks_out += 1
-        return block
+    def _stamp_output(self, processed: Int16Array) -> list[Block]:
+        """Cut AEC3 output into blocks stamped with the capture time of their first sample:
+        output sample i is input sample i - delay; AEC3's start-up silence and filler are dropped."""
+        assert self._aec is not None
+        delay = self._aec.delay_samples
+        first_input = self._out_index - delay
+        self._out_index += len(processed)
+        blocks: list[Block] = []
+        segments = list(self._segments)
+        for k, segment in enumerate(segments):
+            end = segments[k + 1].first if k + 1 < len(segments) else None
+            lo = max(segment.first, first_input)
+            hi = first_input + len(processed) if end is None else min(end, first_input + len(processed))
+            if hi <= lo or segment.filler:
+                continue
+            start_ns = segment.start_ns + (lo - segment.first) * NS_PER_S // self.sample_rate
+            blocks.append(Block(processed[lo - first_input : hi - first_input].copy(), start_ns))
+        # Forget segments whose samples have all come out (keep the last: it goes on).
+        while len(self._segments) > 1 and self._segments[1].first <= self._out_index - delay:
+            self._segments.popleft()
+        return blocks
+
+    def _out(self, blocks: list[Block]) -> list[Block]:
+        self.stats.blocks_out += len(blocks)
+        return blocks

@@ -11,7 +11,7 @@ from rclpy.node import Node
 from std_msgs.msg import Bool
 
 from by_your_command.audio.echo import Block, EchoConfig, EchoController, EchoMode
-from by_your_command.audio.pcm import to_mono
+from by_your_command.audio.pcm import check_sample_rate, to_mono
 from by_your_command.nodes._audio_msgs import make_audio_chunk, pcm_of
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import LATCHED, STREAM
@@ -39,11 +39,17 @@ class EchoSuppressorNode(Node):
         self.create_subscription(Bool, "assistant_speaking", self._on_speaking, LATCHED)
         if self.echo.mode is EchoMode.AEC:
             self.create_subscription(AudioChunk, "audio_played", self._on_played, STREAM)
-        self._reported = (0, 0, 0)
+        self._reported: tuple[int, ...] = ()
         self.create_timer(STATS_PERIOD_S, self._report)
+        aec = (
+            f" aec_delay={self.echo.aec_delay_samples * 1000 / self.sample_rate:.1f}ms "
+            f"echo_guard={self.config.echo_guard}"
+            if self.echo.mode is EchoMode.AEC
+            else ""
+        )
         self.get_logger().info(
             f"echo control ready: mode={self.config.mode} rate={self.sample_rate} "
-            f"gate_tail_ms={self.config.gate_tail_ms}"
+            f"gate_tail_ms={self.config.gate_tail_ms}{aec}"
         )
 
     def _now_ns(self) -> int:
@@ -51,12 +57,18 @@ class EchoSuppressorNode(Node):
 
     def _on_speaking(self, msg: Bool) -> None:
         self.echo.set_assistant_speaking(bool(msg.data), self._now_ns())
+        self._publish(self.echo.drain())
 
     def _on_played(self, msg: AudioChunk) -> None:
         try:
+            check_sample_rate(msg.sample_rate)
             self.echo.add_reference(pcm_of(msg), msg.sample_rate, msg.channels, _to_ns(msg.header.stamp))
         except ValueError as error:
-            self.get_logger().warning(f"bad audio_played chunk dropped: {error}", throttle_duration_sec=5.0)
+            self.echo.stats.reference_rejected += 1
+            self.get_logger().warning(
+                f"bad audio_played chunk dropped: {error} ({self.echo.stats.reference_rejected} so far)",
+                throttle_duration_sec=5.0,
+            )
             return
         self._publish(self.echo.drain())
 
@@ -64,37 +76,36 @@ class EchoSuppressorNode(Node):
         now = self._now_ns()
         start = _to_ns(msg.header.stamp) or now
         if self.echo.mode is not EchoMode.AEC:
-            if self.echo.process(pcm_of(msg), start, now) is not None:
+            if self.echo.process(pcm_of(msg), start, now):
                 self.publisher.publish(msg)  # forwarded unchanged: rate, channels and stamp kept
             return
-        if msg.sample_rate != self.sample_rate:
+        try:
+            check_sample_rate(msg.sample_rate)
+            blocks = self.echo.process(to_mono(pcm_of(msg), msg.channels), start, now, msg.sample_rate)
+        except ValueError as error:
             self.echo.stats.blocks_rejected += 1
             self.get_logger().error(
-                f"aec mode expects {self.sample_rate} Hz audio, got {msg.sample_rate} Hz: chunk dropped "
-                f"({self.echo.stats.blocks_rejected} so far)",
+                f"bad audio chunk dropped: {error} ({self.echo.stats.blocks_rejected} so far)",
                 throttle_duration_sec=5.0,
             )
             return
-        try:
-            mono = to_mono(pcm_of(msg), msg.channels)
-        except ValueError as error:
-            self.echo.stats.blocks_rejected += 1
-            self.get_logger().error(f"bad audio chunk dropped: {error}", throttle_duration_sec=5.0)
-            return
-        self._publish(self.echo.process(mono, start, now))
+        self._publish(blocks)
 
-    def _publish(self, block: Block | None) -> None:
-        if block is not None:
+    def _publish(self, blocks: list[Block]) -> None:
+        for block in blocks:
             self.publisher.publish(make_audio_chunk(block.pcm, self.sample_rate, 1, _to_time(block.start_ns)))
 
     def _report(self) -> None:
         stats = self.echo.stats
-        current = (stats.blocks_in, stats.blocks_gated, stats.blocks_rejected)
+        current = (stats.blocks_in, stats.blocks_gated, stats.blocks_rejected, stats.reference_rejected)
         if current != self._reported:
             self._reported = current
             self.get_logger().info(
                 f"audio blocks in={stats.blocks_in} out={stats.blocks_out} gated={stats.blocks_gated} "
-                f"rejected={stats.blocks_rejected} aec_frames={stats.aec_frames} "
+                f"rejected={stats.blocks_rejected} reference_rejected={stats.reference_rejected} "
+                f"aec_frames={stats.aec_frames} unreferenced={stats.aec_frames_unreferenced} "
+                f"guard_muted={stats.guard_frames_muted} mic_resyncs={stats.mic_resyncs} "
+                f"reference_restarts={stats.reference_restarts} "
                 f"late_reference_samples={stats.reference_samples_late}"
             )
 

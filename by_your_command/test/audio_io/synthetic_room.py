@@ -5,6 +5,7 @@ Shared by the tests and bench/bench_aec.py so both measure the same thing.
 
 from __future__ import annotations
 
+import functools
 import shutil
 import subprocess
 import tempfile
@@ -15,13 +16,45 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
 
-from by_your_command.audio.pcm import Int16Array, float_to_int16, read_wav, resample, to_mono
+from by_your_command.audio.pcm import Int16Array, float_to_int16, read_wav, resample, rms_dbfs, to_mono
 
 CORPUS = Path(__file__).resolve().parents[1] / "data" / "corpus"
 SENTENCES = (
     "The robot turned its head and looked at the door. Could you bring me the red cup from the table, "
     "please? After lunch we will check the battery and then go for a walk in the garden."
 )
+
+
+ROBOT_REPLY = (
+    "Sure. I can see a red cup on the table, next to a blue book and a small green plant. "
+    "Would you like me to pick up the cup and bring it over to you, or should I wait here "
+    "until you have decided what to do next? I could also tidy the shelf by the window."
+)
+
+
+def espeak(text: str, voice: str, rate: int) -> Int16Array:
+    """`text` spoken by espeak-ng (a required system package) with `voice`, at `rate`."""
+    return _espeak(text, voice, rate).copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _espeak(text: str, voice: str, rate: int) -> Int16Array:
+    binary = shutil.which("espeak-ng")
+    if binary is None:
+        raise RuntimeError("espeak-ng is missing: run scripts/bootstrap.sh")
+    with tempfile.TemporaryDirectory() as tmp:
+        wav = Path(tmp) / "speech.wav"
+        subprocess.run(
+            [binary, "-v", voice, "-s", "160", "-w", str(wav), text], check=True, capture_output=True
+        )
+        pcm, source_rate, channels = read_wav(wav)
+    return resample(to_mono(pcm, channels), source_rate, rate)
+
+
+def at_level(pcm: Int16Array, dbfs: float) -> Int16Array:
+    """`pcm` scaled so that its RMS is `dbfs` dB full scale."""
+    gain = 10 ** ((dbfs - rms_dbfs(pcm)) / 20)
+    return float_to_int16(pcm.astype(np.float64) / 32768.0 * gain)
 
 
 def recorded_speech(seconds: float, rate: int) -> Int16Array:
@@ -93,3 +126,49 @@ class Room:
 def energy_db(pcm: Int16Array) -> float:
     power = float(np.mean(np.square(pcm.astype(np.float64)))) + 1e-9
     return 10.0 * float(np.log10(power))
+
+
+@dataclass(frozen=True)
+class Conversation:
+    """The robot replies (`played`, what the player emitted) while the user may talk over it;
+    `mic` is what the microphone captured, `user_spans` where the user speaks (s)."""
+
+    played: Int16Array
+    mic: Int16Array
+    user_spans: list[tuple[float, float]]
+    rate: int
+
+
+def conversation(
+    rate: int,
+    room: Room,
+    echo_dbfs: float = -20.0,
+    user_dbfs: float = -26.0,
+    user_at_s: tuple[float, ...] = (),
+    lead_s: float = 0.5,
+) -> Conversation:
+    """The robot says ROBOT_REPLY (espeak-ng en-gb, ~12 s) after `lead_s` of quiet; the mic hears it
+    through `room` at `echo_dbfs` (RMS while it speaks) plus the user (corpus sentences, en-us, at
+    `user_dbfs`) starting at each of `user_at_s`. A robot close to its mic is louder there than a
+    user a metre away: -20 dBFS echo against -26 dBFS user is typical."""
+    from vad.corpus import sessions  # the committed speech corpus (test/data/corpus)
+
+    reply = espeak(ROBOT_REPLY, "en-gb", rate)
+    lead = np.zeros(int(lead_s * rate), dtype=np.int16)
+    played = np.concatenate([lead, at_level(reply, -18.0), lead])
+    echo = room.echo(played, rate).astype(np.float64)
+    speaking = slice(len(lead), len(lead) + len(reply))
+    echo *= 10 ** ((echo_dbfs - rms_dbfs(float_to_int16(echo[speaking] / 32768.0))) / 20)
+    session = next(s for s in sessions() if s.name == "clean_en_us")
+    corpus = resample(session.audio(), 16000, rate)
+    mic = echo.copy()
+    spans = []
+    for k, start_s in enumerate(user_at_s):
+        segment = session.segments[k % len(session.segments)]
+        words = corpus[int(segment.start * rate) : int(segment.end * rate)]
+        words = at_level(words, user_dbfs).astype(np.float64)
+        at = int(start_s * rate)
+        words = words[: max(0, len(mic) - at)]
+        mic[at : at + len(words)] += words
+        spans.append((start_s, start_s + len(words) / rate))
+    return Conversation(played, float_to_int16(mic / 32768.0), spans, rate)
