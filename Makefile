@@ -1,5 +1,6 @@
 # by_your_command: `make demo` runs the offline demo, `make test` runs every test.
 # Both bootstrap the checkout first (system packages, .venv with ROS 2 Jazzy, colcon build).
+# `make lint` also checks that the package needs nothing newer than Python 3.10 (vermin).
 SHELL := /bin/bash
 RUN := scripts/run.sh
 
@@ -23,6 +24,8 @@ lint: bootstrap
 	@$(RUN) ruff check .
 	@$(RUN) ruff format --check .
 	@$(RUN) mypy
+	@$(RUN) vermin --target=3.10- --no-tips --violations --eval-annotations --quiet \
+	  by_your_command/by_your_command by_your_command/setup.py scripts bench
 
 format: bootstrap
 	@$(RUN) ruff check --fix .

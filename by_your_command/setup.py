@@ -1,4 +1,8 @@
-"""ament_python package: executables go to lib/by_your_command so `ros2 run` finds them."""
+"""ament_python package: executables go to lib/by_your_command so `ros2 run` finds them.
+
+The same file builds a plain wheel (`pip install ./by_your_command`) for machines without ROS, where
+agents run: config/*.yaml then ships inside the Python package too (prompts/locate.py finds it there).
+"""
 
 from glob import glob
 
@@ -23,18 +27,41 @@ EXECUTABLES = {
     "simple_audio_player": "by_your_command.nodes.simple_audio_player:main",
 }
 
+# Ranges for users; the exact versions CI tests are pinned in requirements/*.txt (the lock).
+# Lower bounds: the oldest releases with Python 3.10 wheels and the APIs the code uses (checked once
+# by running the unit tests on Python 3.10 with exactly these versions; CI tests only the lock).
+INSTALL_REQUIRES = [
+    "numpy>=2.0",  # np.concat (a numpy 2 name)
+    "scipy>=1.13",  # first release built against numpy 2
+    "pyyaml>=6.0",
+    "websockets>=15.0",  # websockets.asyncio, connect(proxy=...); apt's python3-websockets is 10.x
+    "pillow>=10.3",  # Image.Resampling (9.1); 10.3 fixes CVE-2024-28219
+    "onnxruntime>=1.19",  # first release built against numpy 2
+]
+# Imported only where used. silero-vad (the VAD's ONNX model) is not listed: its own dependencies
+# pull in torch, so it is installed with `pip install --no-deps "silero-vad>=6.2"` (README; the
+# corpus tests are tuned to the 6.2 model, 6.0 and 6.1 miss utterances in noise).
+EXTRAS_REQUIRE = {
+    "audio": ["sounddevice>=0.4.6"],  # microphone and speaker devices (needs libportaudio2)
+    "aec": ["livekit>=1.1.4"],  # WebRTC AEC3; older releases fail test_echo (no high-pass)
+}
+
 setup(
     name=PACKAGE,
     version="0.1.0",
-    packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["py.typed"]},
+    python_requires=">=3.10",
+    # config/ is also the Python package's `config` folder (package data): one copy in git.
+    packages=[*find_packages(exclude=["test", "test.*"]), f"{PACKAGE}.config"],
+    package_dir={f"{PACKAGE}.config": "config"},
+    package_data={PACKAGE: ["py.typed"], f"{PACKAGE}.config": ["*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.py")),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
-    install_requires=["setuptools"],
+    install_requires=INSTALL_REQUIRES,
+    extras_require=EXTRAS_REQUIRE,
     zip_safe=False,
     maintainer="by_your_command maintainers",
     maintainer_email="maintainers@by-your-command.invalid",

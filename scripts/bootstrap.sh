@@ -19,9 +19,11 @@ hash_of() { cat "$@" 2>/dev/null | sha256sum | cut -d' ' -f1; }
 
 # --- 1. Python -------------------------------------------------------------------------------
 PYTHON="${PYTHON:-python3}"
-command -v "$PYTHON" >/dev/null || die "no $PYTHON on PATH; install Python 3.10 or newer"
-"$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 10))' \
-  || die "$("$PYTHON" --version 2>&1) is too old; Python 3.10 or newer is needed"
+# The lock (requirements/*.txt) pins releases that need 3.11. The package itself supports 3.10
+# (ROS 2 Humble): users install it with ranges (setup.py), see README.
+command -v "$PYTHON" >/dev/null || die "no $PYTHON on PATH; install Python 3.11 or newer"
+"$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
+  || die "$("$PYTHON" --version 2>&1) is too old for this checkout's lock; Python 3.11 or newer is needed (on 3.10, install the package with pip or colcon: see README)"
 "$PYTHON" -c 'import venv, ensurepip' 2>/dev/null \
   || die "$PYTHON has no venv/ensurepip module; install python3-venv"
 

@@ -1,10 +1,12 @@
-"""The bootstrap is idempotent and quick, and the wheel path fix-up rewrites exactly what it must."""
+"""The bootstrap is idempotent, and the wheel path fix-up rewrites exactly what it must.
+
+How long a no-op bootstrap takes is measured in bench/bench_bootstrap.py, not asserted here.
+"""
 
 from __future__ import annotations
 
 import importlib.util
 import subprocess
-import time
 from types import ModuleType
 
 import pytest
@@ -34,13 +36,10 @@ def test_wheel_include_paths_are_rewritten() -> None:
 
 
 @pytest.mark.unit
-def test_second_bootstrap_does_nothing_and_is_quick() -> None:
+def test_second_bootstrap_does_nothing() -> None:
     # make test has just bootstrapped this checkout, so nothing should be left to do.
-    start = time.monotonic()
     result = subprocess.run(
         ["bash", str(REPO_ROOT / "scripts" / "bootstrap.sh")], capture_output=True, text=True, timeout=120
     )
-    elapsed = time.monotonic() - start
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().splitlines() == ["bootstrap: ready"], result.stdout
-    assert elapsed < 20

@@ -25,6 +25,16 @@ ROS_ONLY_MODULES = (
     "by_your_command_msgs",
     "ament_index_python",
 )
+# Python source that makes every ROS package unimportable in the interpreter that runs it.
+ROS_BLOCKER = (
+    "import sys\n"
+    f"_blocked = {ROS_ONLY_MODULES!r}\n"
+    "class _BlockRos:\n"
+    "    def find_spec(self, name, path=None, target=None):\n"
+    "        if name.split('.')[0] in _blocked:\n"
+    "            raise ImportError(f'{name} is not available without ROS')\n"
+    "sys.meta_path.insert(0, _BlockRos())\n"
+)
 
 
 def core_modules() -> list[Path]:
@@ -65,15 +75,7 @@ def test_core_imports_with_ros_absent() -> None:
         for path in core_modules()
     ]
     blocker = (
-        "import sys, importlib\n"
-        f"blocked = {ROS_ONLY_MODULES!r}\n"
-        "class Block:\n"
-        "    def find_spec(self, name, path=None, target=None):\n"
-        "        if name.split('.')[0] in blocked:\n"
-        "            raise ImportError(f'{name} is not available without ROS')\n"
-        "sys.meta_path.insert(0, Block())\n"
-        f"for module in {modules!r}:\n"
-        "    importlib.import_module(module)\n"
+        ROS_BLOCKER + f"import importlib\nfor module in {modules!r}:\n    importlib.import_module(module)\n"
     )
     env = {**os.environ, "PYTHONPATH": str(PACKAGE_DIR.parent)}
     result = subprocess.run([sys.executable, "-c", blocker], env=env, capture_output=True, text=True)

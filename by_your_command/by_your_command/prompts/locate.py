@@ -2,8 +2,9 @@
 
 Search order: an explicit path; `<prefix>/share/by_your_command/config/<name>` for each prefix
 in AMENT_PREFIX_PATH (a colcon install or a sourced ROS workspace); the `config/` directory next
-to the Python package (a source checkout or `pip install -e`). Nothing found is an error that lists
-every place looked at: there is no built-in fallback.
+to the Python package (a source checkout or `pip install -e`); last, the package's own `config/`
+folder (package data of a wheel: `pip install` on a machine without ROS, where agents run).
+Nothing found is an error that lists every place looked at: there is no built-in fallback.
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ def candidate_paths(name: str, environ: dict[str, str] | None = None) -> list[Pa
     env = os.environ if environ is None else environ
     prefixes = [entry for entry in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if entry]
     candidates = [Path(prefix) / "share" / PACKAGE / "config" / name for prefix in prefixes]
-    candidates.append(Path(__file__).resolve().parents[2] / "config" / name)
+    package = Path(__file__).resolve().parents[1]
+    candidates.append(package.parent / "config" / name)
+    candidates.append(package / "config" / name)
     return candidates
 
 
