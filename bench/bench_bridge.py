@@ -1,11 +1,16 @@
-"""Bridge latency and overload: ROS → ros_ai_bridge → WebSocket client, against same-run baselines.
+"""Bridge latency, overload accounting and heavy-client isolation, against same-run baselines.
 
-Figures (one JSON line each, then a table):
+Figures (one JSON line each, then tables):
 - one-way latency of a 32 ms audio chunk (AudioDataUtterance, 512 samples) published in ROS and
   received (a) by a plain rclpy subscriber (raw DDS) and (b) by our BridgeClient through the bridge,
   for the same messages; the bridge's added cost is (b) - (a) per message;
 - (c) a raw websockets server process sending the same JSON frame size to a client (no ROS);
-- the publish rate at which the bridge first reports drops to a client that reads as fast as it can.
+- overload: at 500..8000 chunks/s for one second each, sent / delivered / reported lost (the
+  bridge's `lost` and `dropped` statuses) / unaccounted (must be 0: every loss is reported);
+- heavy client: latency of a light client's 40 ms `response_voice` chunks (WebSocket → ROS) alone
+  and while another client publishes ~0.9 MB chunks, with large conversions on worker threads
+  (default) and, as the "before" baseline in the same run, all on the event loop
+  (`inline_convert_bytes` huge).
 Clocks: CLOCK_MONOTONIC (time.monotonic_ns) is shared by all processes on the machine.
 usage: scripts/run.sh python bench/bench_bridge.py [--messages N]
 """
@@ -91,7 +96,8 @@ async def raw_websocket_latencies(port: int, count: int) -> list[float]:
 # --- the bridge ------------------------------------------------------------------------------------
 
 
-def start_bridge(namespace: str) -> tuple[subprocess.Popen[str], int]:
+def start_bridge(namespace: str, *params: str) -> tuple[subprocess.Popen[str], int]:
+    extra = [arg for param in params for arg in ("-p", param)]
     process = subprocess.Popen(
         [
             str(BRIDGE),
@@ -102,6 +108,7 @@ def start_bridge(namespace: str) -> tuple[subprocess.Popen[str], int]:
             "port:=0",
             "-p",
             "diagnostics_period_s:=0.0",
+            *extra,
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -126,7 +133,7 @@ class RosSide:
 
     def __init__(self, namespace: str) -> None:
         import rclpy
-        from by_your_command_msgs.msg import AudioDataUtterance
+        from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
 
@@ -139,11 +146,17 @@ class RosSide:
         self.publisher = self.node.create_publisher(AudioDataUtterance, "prompt_voice", _qos.RELIABLE)
         self.dds_latency: dict[int, float] = {}
         self.node.create_subscription(AudioDataUtterance, "prompt_voice", self._on_message, _qos.RELIABLE)
+        self.voice_latency: list[float] = []  # light client's response_voice chunks, WebSocket → ROS
+        self.node.create_subscription(AudioChunk, "response_voice", self._on_voice, _qos.RELIABLE)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self.executor.spin, daemon=True)
         self._thread.start()
         self._pcm = array.array("h", bytes(CHUNK_SAMPLES * 2))
+
+    def _on_voice(self, msg: Any) -> None:
+        if msg.stream_id.startswith("light "):
+            self.voice_latency.append((time.monotonic_ns() - int(msg.stream_id[6:])) / 1e6)
 
     def _on_message(self, msg: Any) -> None:
         if msg.chunk_sequence == WARM_UP:
@@ -174,8 +187,11 @@ async def client_main(port: int, count: int) -> None:
         await client.subscribe("prompt_voice")
         live = False
         while len(latencies) < count:
-            msg = (await client.receive(30)).msg
+            delivery = await client.receive(30)
             now = time.monotonic_ns()
+            msg = getattr(delivery, "msg", None)
+            if msg is None:  # a loss report: not a latency sample
+                continue
             if msg["chunk_sequence"] == WARM_UP:
                 if not live:
                     print("live", flush=True)
@@ -210,20 +226,45 @@ def bridge_latencies(ros: RosSide, port: int, count: int, period_s: float) -> tu
     return [ros.dds_latency[i] for i in common], [measured[i] for i in common]
 
 
-async def drop_onset(ros: RosSide, port: int, rates: list[int], seconds: float) -> list[dict[str, float]]:
-    from by_your_command.bridge.client import BridgeClient, ClientOptions
+async def poll_until(condition: Any, timeout: float) -> None:
+    """Settle: give in-flight messages up to `timeout` s to arrive (a bench, not a test)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        await asyncio.sleep(0.01)
+
+
+async def overload_accounting(
+    ros: RosSide, port: int, rates: list[int], seconds: float
+) -> list[dict[str, float]]:
+    """Publish at each rate for `seconds`; count what arrives and what the bridge reports lost."""
+    from websockets.asyncio.client import connect
 
     results = []
-    async with BridgeClient(f"ws://127.0.0.1:{port}/", ClientOptions(receive_queue=1_000_000)) as client:
-        await client.wait_connected(10)
-        await client.subscribe("prompt_voice")
-        while client.receive_nowait() is None:
+    counts = {"delivered": 0, "reported": 0}
+
+    async def read(connection: Any) -> None:
+        async for text in connection:
+            frame = json.loads(text)
+            if frame["op"] == "publish" and frame["msg"]["chunk_sequence"] != WARM_UP:
+                counts["delivered"] += 1
+            elif frame["op"] == "status" and frame.get("code") in ("lost", "dropped"):
+                counts["reported"] += sum(frame["counts"].values())
+
+    async with connect(f"ws://127.0.0.1:{port}/", compression=None, max_size=None) as connection:
+        await connection.send('{"op":"subscribe","topic":"prompt_voice"}')
+        while True:  # path live end to end: one warm-up message arrives
             ros.publish(WARM_UP)
-            await asyncio.sleep(0.05)
+            try:
+                json.loads(await asyncio.wait_for(connection.recv(), 0.1))
+                break
+            except asyncio.TimeoutError:  # noqa: UP041 - not the builtin TimeoutError before 3.11
+                continue
+        reader = asyncio.create_task(read(connection))
         sequence = 1_000_000
         for rate in rates:
-            before_drops = sum(sum(s.counts.values()) for s in client.statuses if s.code == "dropped")
-            received = 0
+            counts.update(delivered=0, reported=0)
             sent = 0
             start = time.monotonic()
             while time.monotonic() - start < seconds:
@@ -232,29 +273,66 @@ async def drop_onset(ros: RosSide, port: int, rates: list[int], seconds: float) 
                     ros.publish(sequence)
                     sequence += 1
                     sent += 1
-                while client.receive_nowait() is not None:
-                    received += 1
                 await asyncio.sleep(0.001)
-            settle = time.monotonic() + 2.0
-            while received < sent and time.monotonic() < settle:
-                if client.receive_nowait() is not None:
-                    received += 1
-                else:
-                    await asyncio.sleep(0.01)
-            drops = sum(sum(s.counts.values()) for s in client.statuses if s.code == "dropped") - before_drops
-            achieved = sent / seconds
+            await poll_until(lambda sent=sent: counts["delivered"] + counts["reported"] >= sent, 5.0)
             results.append(
                 {
                     "rate": float(rate),
-                    "achieved": achieved,
+                    "achieved": sent / seconds,
                     "sent": sent,
-                    "received": received,
-                    "bridge_reported_drops": drops,
+                    "delivered": counts["delivered"],
+                    "reported_lost": counts["reported"],
+                    "unaccounted": sent - counts["delivered"] - counts["reported"],
                 }
             )
-            if received < sent:
-                break
+        reader.cancel()
     return results
+
+
+def heavy_chunk_frame(samples: int) -> str:
+    import random
+
+    rng = random.Random(7)
+    data = [rng.randint(-32768, 32767) for _ in range(samples)]
+    msg = {"sample_rate": 24000, "channels": 1, "stream_id": "heavy", "data": data}
+    return json.dumps({"op": "publish", "topic": "response_voice", "msg": msg}, separators=(",", ":"))
+
+
+async def light_latencies(ros: RosSide, port: int, seconds: float, heavy_clients: int) -> list[float]:
+    """A light client sends a 40 ms chunk every 20 ms while `heavy_clients` publish ~0.9 MB chunks."""
+    from websockets.asyncio.client import connect
+
+    url = f"ws://127.0.0.1:{port}/"
+    heavy = heavy_chunk_frame(130_000)
+    samples = [0] * 960
+    stop = asyncio.Event()
+
+    async def push_heavy() -> None:
+        async with connect(url, compression=None, max_size=None) as connection:
+            while not stop.is_set():
+                await connection.send(heavy)  # as fast as the bridge reads (it applies back-pressure)
+
+    heavy_tasks = [asyncio.create_task(push_heavy()) for _ in range(heavy_clients)]
+    ros.voice_latency.clear()
+    async with connect(url, compression=None) as light:
+        end = time.monotonic() + seconds
+        sent = 0
+        while time.monotonic() < end:
+            msg = {
+                "sample_rate": 24000,
+                "channels": 1,
+                "stream_id": f"light {time.monotonic_ns()}",
+                "data": samples,
+            }
+            await light.send(json.dumps({"op": "publish", "topic": "response_voice", "msg": msg}))
+            sent += 1
+            await asyncio.sleep(0.02)
+        await poll_until(lambda: len(ros.voice_latency) >= sent, 5.0)
+    stop.set()
+    for task in heavy_tasks:
+        task.cancel()
+    await asyncio.gather(*heavy_tasks, return_exceptions=True)
+    return list(ros.voice_latency)
 
 
 def main() -> int:
@@ -284,14 +362,21 @@ def main() -> int:
         finally:
             ws_server.kill()
             ws_server.wait()
-        onset = asyncio.run(drop_onset(ros, port, [500, 1000, 2000, 4000, 8000], 1.0))
+        onset = asyncio.run(overload_accounting(ros, port, [500, 1000, 2000, 4000, 8000], 1.0))
+        heavy: dict[str, list[float]] = {
+            "light alone": asyncio.run(light_latencies(ros, port, 2.0, 0)),
+            "with 2 heavy, workers": asyncio.run(light_latencies(ros, port, 3.0, 2)),
+        }
+        inline_bridge, inline_port = start_bridge(namespace + "_inline", "inline_convert_bytes:=100000000")
+        inline_ros = RosSide(namespace + "_inline")
+        try:
+            heavy["with 2 heavy, on loop"] = asyncio.run(light_latencies(inline_ros, inline_port, 3.0, 2))
+        finally:
+            inline_ros.close()
+            stop_process(inline_bridge)
     finally:
         ros.close()
-        bridge.terminate()
-        try:
-            bridge.wait(5)
-        except subprocess.TimeoutExpired:
-            bridge.kill()
+        stop_process(bridge)
     added = [b - d for d, b in zip(dds, via_bridge, strict=True)]
     rows = []
     for name, values in (
@@ -306,25 +391,48 @@ def main() -> int:
         rows.append((name, p50, p99, len(values)))
     emit("ratio_p50_bridge_vs_dds", statistics.median(via_bridge) / statistics.median(dds), "x")
     for step in onset:
-        emit("overload_step", step["received"] / max(1, step["sent"]), "fraction_received", **step)
-    first_drop = next((s["achieved"] for s in onset if s["received"] < s["sent"]), None)
+        emit("overload_step", step["delivered"] / max(1, step["sent"]), "fraction_delivered", **step)
+    first_drop = next((s["achieved"] for s in onset if s["delivered"] < s["sent"]), None)
     emit(
         "drops_start_at",
         first_drop if first_drop is not None else float("nan"),
         "msg/s",
         note="publish rate of the first step with loss (NaN: none up to the highest step)",
     )
+    emit("unaccounted_total", sum(s["unaccounted"] for s in onset), "messages", note="must be 0")
+    alone_p50 = statistics.median(heavy["light alone"]) if heavy["light alone"] else float("nan")
+    heavy_rows = []
+    for name, values in heavy.items():
+        if not values:
+            continue
+        p50, p99 = statistics.median(values), percentile(values, 99)
+        emit(
+            "light_publish_p50", p50, "ms", path=name, n=len(values), ratio_vs_alone=round(p50 / alone_p50, 2)
+        )
+        emit("light_publish_p99", p99, "ms", path=name, n=len(values))
+        heavy_rows.append((name, p50, p99, max(values), len(values)))
     print()
     print(f"{'path':<26} {'p50 ms':>8} {'p99 ms':>8} {'n':>6}")
     for name, p50, p99, n in rows:
         print(f"{name:<26} {p50:>8.3f} {p99:>8.3f} {n:>6}")
-    print(f"\n{'rate msg/s':>10} {'achieved':>9} {'sent':>7} {'received':>9} {'reported drops':>15}")
+    print(f"\n{'rate msg/s':>10} {'sent':>7} {'delivered':>10} {'reported lost':>14} {'unaccounted':>12}")
     for step in onset:
         print(
-            f"{step['rate']:>10.0f} {step['achieved']:>9.0f} {step['sent']:>7.0f} {step['received']:>9.0f} "
-            f"{step['bridge_reported_drops']:>15.0f}"
+            f"{step['rate']:>10.0f} {step['sent']:>7.0f} {step['delivered']:>10.0f} "
+            f"{step['reported_lost']:>14.0f} {step['unaccounted']:>12.0f}"
         )
+    print(f"\n{'light client publish (ms)':<26} {'p50':>8} {'p99':>8} {'max':>8} {'n':>6}")
+    for name, p50, p99, worst, n in heavy_rows:
+        print(f"{name:<26} {p50:>8.3f} {p99:>8.3f} {worst:>8.3f} {n:>6}")
     return 0
+
+
+def stop_process(process: subprocess.Popen[str]) -> None:
+    process.terminate()
+    try:
+        process.wait(5)
+    except subprocess.TimeoutExpired:
+        process.kill()
 
 
 if __name__ == "__main__":

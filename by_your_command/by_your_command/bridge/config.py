@@ -36,15 +36,58 @@ class BridgeParams:
     diagnostics_period_s: float = field(default=1.0, metadata={"help": "0 disables diagnostics"})
     diagnostics_topic: str = field(default="/diagnostics", metadata={"help": "ROS convention: global"})
     ping_interval_s: float = field(default=20.0, metadata={"help": "WebSocket keepalive ping period"})
+    allowed_origins: tuple[str, ...] = field(
+        default=(),
+        metadata={
+            "help": "browser Origins allowed to connect (e.g. http://robot.local:8080), besides the "
+            "bridge's own http://127.0.0.1:<port> and http://localhost:<port>; clients sending no "
+            "Origin (agents, roslibpy) are not affected"
+        },
+    )
+    status_queue_bytes: int = field(
+        default=65_536,
+        metadata={"help": "per-client bound on queued status replies; beyond it they coalesce"},
+    )
+    max_json_depth: int = field(default=32, metadata={"help": "deepest JSON nesting accepted from a client"})
+    inline_convert_bytes: int = field(
+        default=16_384,
+        metadata={"help": "publishes up to this size are converted on the event loop, larger on a worker"},
+    )
+    convert_threads: int = field(default=2, metadata={"help": "worker threads converting large publishes"})
+    pending_publish_messages: int = field(
+        default=32, metadata={"help": "per client: publishes awaiting conversion before reading pauses"}
+    )
+    pending_publish_bytes: int = field(
+        default=4_194_304, metadata={"help": "per client: bytes awaiting conversion before reading pauses"}
+    )
+    audio_history_depth: int = field(
+        default=1000, metadata={"help": "DDS history depth of the bridge's audio-class subscriptions"}
+    )
+    refusal_logs_per_s: float = field(
+        default=2.0, metadata={"help": "refusal log lines per second (burst 20), the rest are counted"}
+    )
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
             raise ValueError(f"port must be 0..65535, got {self.port}")
-        for name in ("max_message_bytes", "max_clients", "send_queue_messages", "send_queue_bytes"):
+        for name in (
+            "max_message_bytes",
+            "max_clients",
+            "send_queue_messages",
+            "send_queue_bytes",
+            "status_queue_bytes",
+            "max_json_depth",
+            "convert_threads",
+            "pending_publish_messages",
+            "pending_publish_bytes",
+            "audio_history_depth",
+        ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if self.rate_limit_per_s <= 0 or self.rate_burst < 1:
-            raise ValueError("rate_limit_per_s and rate_burst must be positive")
+        if self.inline_convert_bytes < 0:
+            raise ValueError(f"inline_convert_bytes must be >= 0, got {self.inline_convert_bytes}")
+        if self.rate_limit_per_s <= 0 or self.rate_burst < 1 or self.refusal_logs_per_s <= 0:
+            raise ValueError("rate_limit_per_s, rate_burst and refusal_logs_per_s must be positive")
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Flow control for one client: a bounded send queue with per-class drop policy, and a rate limiter."""
+"""Flow control: a client's bounded send queue with per-class drop policy, rate and log limiters."""
 
 from __future__ import annotations
 
@@ -25,20 +25,33 @@ class SendQueue:
     - drop-oldest topics (video) replace their own oldest queued frame: only fresh frames matter;
     - every other topic drops the *new* message, counts it and owes the client a `status`
       warning with the counts, sent ahead of the next frame (never a silent loss).
-    Status frames (errors, drop reports) bypass the bound: they are few and the client needs them.
+    Status frames (refusals) have their own bound in count and bytes: beyond it, further ones are
+    only counted by code and the client gets one `suppressed` summary, so a client that floods us
+    with bad requests and never reads cannot grow the bridge. Drop and loss reports are one
+    counter per topic, so they need no bound.
+    Sizes are `len(text)`: every frame the bridge sends is ASCII JSON (json.dumps escapes the rest),
+    so characters are bytes.
     """
 
-    def __init__(self, max_messages: int, max_bytes: int) -> None:
+    def __init__(
+        self, max_messages: int, max_bytes: int, max_control_bytes: int = 65_536, max_control: int = 64
+    ) -> None:
         self.max_messages = max_messages
         self.max_bytes = max_bytes
+        self.max_control_bytes = max_control_bytes
+        self.max_control = max_control
         self._entries: deque[_Entry] = deque()
-        self._control: deque[str] = deque(maxlen=64)
+        self._control: deque[str] = deque()
+        self._control_bytes = 0
         self._per_topic: dict[str, int] = {}
         self._bytes = 0
         self._unreported: dict[str, int] = {}
+        self._unreported_lost: dict[str, int] = {}
+        self._suppressed: dict[str, int] = {}
         self._wakeup = asyncio.Event()
         self.dropped: dict[str, int] = {}  # every drop by topic (video replacements included)
-        self.control_overflow = 0
+        self.lost: dict[str, int] = {}  # lost before the bridge (DDS), reported to this subscriber
+        self.control_overflow = 0  # status replies coalesced into a `suppressed` summary
 
     @property
     def depth(self) -> int:
@@ -71,14 +84,30 @@ class SendQueue:
         self._wakeup.set()
         return True
 
-    def put_control(self, text: str) -> None:
-        if len(self._control) == self._control.maxlen:
-            self.control_overflow += 1  # a client flooding us with bad requests: keep the newest errors
+    @property
+    def queued_control_bytes(self) -> int:
+        return self._control_bytes
+
+    def put_control(self, text: str, code: str = "status") -> bool:
+        """Queue a status reply; False when the bound is reached and it was only counted under `code`."""
+        if len(self._control) >= self.max_control or self._control_bytes + len(text) > self.max_control_bytes:
+            self.control_overflow += 1
+            self._suppressed[code] = self._suppressed.get(code, 0) + 1
+            self._wakeup.set()
+            return False
         self._control.append(text)
+        self._control_bytes += len(text)
+        self._wakeup.set()
+        return True
+
+    def count_lost(self, topic: str, count: int) -> None:
+        """Messages of `topic` lost upstream (before the bridge): owed to the client as a `lost` report."""
+        self.lost[topic] = self.lost.get(topic, 0) + count
+        self._unreported_lost[topic] = self._unreported_lost.get(topic, 0) + count
         self._wakeup.set()
 
     def take_nowait(self) -> str | None:
-        """The next frame to send: owed drop report, then status frames, then data."""
+        """The next frame to send: owed drop/loss reports and summaries, then status frames, then data."""
         if self._unreported:
             counts, self._unreported = self._unreported, {}
             total = sum(counts.values())
@@ -90,8 +119,32 @@ class SendQueue:
                     counts=counts,
                 )
             )
+        if self._unreported_lost:
+            counts, self._unreported_lost = self._unreported_lost, {}
+            total = sum(counts.values())
+            return encode_status(
+                Status(
+                    "warning",
+                    f"{total} message(s) were lost before reaching the bridge (ROS history full): {counts}",
+                    code="lost",
+                    counts=counts,
+                )
+            )
+        if self._suppressed:
+            counts, self._suppressed = self._suppressed, {}
+            total = sum(counts.values())
+            return encode_status(
+                Status(
+                    "error",
+                    f"{total} more refusal(s) not sent one by one (status replies are bounded): {counts}",
+                    code="suppressed",
+                    counts=counts,
+                )
+            )
         if self._control:
-            return self._control.popleft()
+            text = self._control.popleft()
+            self._control_bytes -= len(text)
+            return text
         if self._entries:
             entry = self._entries.popleft()
             self._forget(entry)
@@ -143,3 +196,25 @@ class TokenBucket:
             self._tokens -= 1.0
             return True
         return False
+
+
+class LogLimiter:
+    """Lets `rate` log lines per second through (bursts of `burst`); counts the ones it holds back.
+
+    Log lines about what clients do are driven by clients: without a bound, a flood of bad requests
+    (or connection attempts) becomes a flood of log lines.
+    """
+
+    def __init__(self, rate: float, burst: int = 20, clock: Callable[[], float] = time.monotonic) -> None:
+        self._bucket = TokenBucket(rate, burst, clock)
+        self._held = 0
+        self.suppressed = 0
+
+    def allow(self) -> int | None:
+        """None: stay quiet. Otherwise log, mentioning the returned number of lines held back since."""
+        if self._bucket.allow():
+            held, self._held = self._held, 0
+            return held
+        self._held += 1
+        self.suppressed += 1
+        return None

@@ -8,11 +8,20 @@ and normalised to `pkg/msg/Type`.
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 StatusLevel = Literal["error", "warning", "info"]
+# A request id comes back exactly as the client sent it: a JSON string or integer.
+RequestId = str | int
+
+MAX_JSON_DEPTH = 32  # rosbridge requests and our message types nest far less than this
+MAX_NUMBER_CHARS = 64  # a float literal longer than this is not a measurement, it is an attack
+MAX_ID_CHARS = 128
+MAX_ID_INT = 2**63 - 1
+PREVIEW_CHARS = 64  # client strings quoted in replies and logs are cut to this
 
 _TYPE_RE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z][A-Za-z0-9_]*)$")
 _TOPIC_RE = re.compile(r"^/?[A-Za-z~][A-Za-z0-9_/~]*$")
@@ -21,10 +30,72 @@ _TOPIC_RE = re.compile(r"^/?[A-Za-z~][A-Za-z0-9_/~]*$")
 class ProtocolError(ValueError):
     """An inbound frame that is not a valid request; `request_id` echoes the client's id if known."""
 
-    def __init__(self, message: str, request_id: str | None = None, op: str | None = None) -> None:
+    def __init__(self, message: str, request_id: RequestId | None = None, op: str | None = None) -> None:
         super().__init__(message)
         self.request_id = request_id
         self.op = op
+
+
+def preview(value: object, limit: int = PREVIEW_CHARS) -> str:
+    """A client-supplied value quoted for a reply or a log line: repr, cut to `limit` characters.
+
+    Never echo what a client sent in full: a 1 MB topic name would be copied into every refusal.
+    """
+    if not isinstance(value, str):
+        return f"<{type(value).__name__}>"
+    text = value
+    quoted = repr(text[: limit + 1])
+    return quoted if len(text) <= limit else f"{quoted[:-1]}…{quoted[-1]} ({len(text)} chars)"
+
+
+def _refuse_constant(name: str) -> Any:
+    raise ProtocolError(f"{name} is not a JSON number (non-finite numbers are refused)")
+
+
+def _finite_float(literal: str) -> float:
+    if len(literal) > MAX_NUMBER_CHARS:
+        raise ProtocolError(f"number literal of {len(literal)} characters is too long")
+    value = float(literal)
+    if not math.isfinite(value):
+        raise ProtocolError(f"number {preview(literal, 24)} is out of range")
+    return value
+
+
+def _too_deep(value: Any, limit: int) -> bool:
+    """Iterative depth check (no recursion on attacker-controlled structure)."""
+    stack: list[tuple[Any, int]] = [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if depth > limit:
+            return True
+        children = item.values() if isinstance(item, dict) else item
+        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list)))
+    return False
+
+
+def load_json(text: str | bytes, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """`json.loads` for untrusted input: every failure is a ProtocolError, never another exception.
+
+    Refuses NaN/Infinity, float literals that overflow (1e400) or are absurdly long, integers over
+    Python's digit limit (its int parser raises ValueError) and nesting deeper than `max_depth`.
+    """
+    try:
+        data = json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float)
+    except ProtocolError:
+        raise
+    except RecursionError:
+        raise ProtocolError(f"JSON nested deeper than {max_depth} levels") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ProtocolError(f"malformed JSON: {error}") from None
+    except ValueError:  # int('9' * 5000): "Exceeds the limit (4300 digits) for integer string conversion"
+        raise ProtocolError("malformed JSON: a number is too large") from None
+    # Counting openers is C-speed; only frames with many of them (usually inside strings) need the walk.
+    openers = (
+        text.count(b"[") + text.count(b"{") if isinstance(text, bytes) else text.count("[") + text.count("{")
+    )
+    if openers > max_depth and isinstance(data, (dict, list)) and _too_deep(data, max_depth):
+        raise ProtocolError(f"JSON nested deeper than {max_depth} levels")
+    return data
 
 
 def normalize_type(type_name: str) -> str:
@@ -39,20 +110,20 @@ def normalize_type(type_name: str) -> str:
 class Advertise:
     topic: str
     type: str
-    id: str | None = None
+    id: RequestId | None = None
 
 
 @dataclass(frozen=True)
 class Unadvertise:
     topic: str
-    id: str | None = None
+    id: RequestId | None = None
 
 
 @dataclass(frozen=True)
 class Publish:
     topic: str
     msg: dict[str, Any]
-    id: str | None = None
+    id: RequestId | None = None
 
 
 @dataclass(frozen=True)
@@ -61,20 +132,20 @@ class Subscribe:
     type: str | None = None
     throttle_rate_ms: int = 0  # minimum interval between two messages to this client
     queue_length: int = 0  # 0: the bridge's default per-subscription bound
-    id: str | None = None
+    id: RequestId | None = None
 
 
 @dataclass(frozen=True)
 class Unsubscribe:
     topic: str
-    id: str | None = None
+    id: RequestId | None = None
 
 
 @dataclass(frozen=True)
 class Status:
     level: StatusLevel
     msg: str
-    id: str | None = None
+    id: RequestId | None = None
     # Our addition: machine-readable reason code and topic, ignored by stock clients.
     code: str = ""
     topic: str = ""
@@ -84,7 +155,9 @@ class Status:
 Request = Advertise | Unadvertise | Publish | Subscribe | Unsubscribe
 
 
-def _string(data: dict[str, Any], key: str, op: str, request_id: str | None, required: bool = True) -> str:
+def _string(
+    data: dict[str, Any], key: str, op: str, request_id: RequestId | None, required: bool = True
+) -> str:
     value = data.get(key)
     if value is None and not required:
         return ""
@@ -93,40 +166,62 @@ def _string(data: dict[str, Any], key: str, op: str, request_id: str | None, req
     return value
 
 
-def _topic(data: dict[str, Any], op: str, request_id: str | None) -> str:
+MAX_TOPIC_CHARS = 256
+
+
+def _topic(data: dict[str, Any], op: str, request_id: RequestId | None) -> str:
     topic = _string(data, "topic", op, request_id)
-    if not _TOPIC_RE.match(topic) or "//" in topic or topic.endswith("/"):
-        raise ProtocolError(f"invalid topic name {topic!r}", request_id, op)
+    if len(topic) > MAX_TOPIC_CHARS or not _TOPIC_RE.match(topic) or "//" in topic or topic.endswith("/"):
+        raise ProtocolError(f"invalid topic name {preview(topic)}", request_id, op)
     return topic
 
 
-def _type(data: dict[str, Any], op: str, request_id: str | None, required: bool) -> str | None:
+def _type(data: dict[str, Any], op: str, request_id: RequestId | None, required: bool) -> str | None:
     raw = _string(data, "type", op, request_id, required=required)
     if not raw:
         return None
+    if len(raw) > MAX_TOPIC_CHARS:
+        raise ProtocolError(f"invalid message type {preview(raw)}", request_id, op)
     try:
         return normalize_type(raw)
-    except ValueError as error:
-        raise ProtocolError(str(error), request_id, op) from None
+    except ValueError:
+        raise ProtocolError(
+            f"invalid message type {preview(raw)} (expected pkg/Type or pkg/msg/Type)", request_id, op
+        ) from None
 
 
-def _non_negative_int(data: dict[str, Any], key: str, op: str, request_id: str | None) -> int:
+MAX_OPTION_VALUE = 2**31 - 1  # throttle_rate (ms) and queue_length: beyond this they mean nothing
+
+
+def _non_negative_int(data: dict[str, Any], key: str, op: str, request_id: RequestId | None) -> int:
     value = data.get(key, 0)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
-        raise ProtocolError(f"'{op}' field '{key}' must be a non-negative number", request_id, op)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= MAX_OPTION_VALUE:
+        raise ProtocolError(
+            f"'{op}' field '{key}' must be a non-negative number up to {MAX_OPTION_VALUE}", request_id, op
+        )
     return int(value)
 
 
-def parse_request(text: str | bytes) -> Request:
+def _request_id(data: dict[str, Any]) -> RequestId | None:
+    """The client's `id`, kept as the JSON value it was; anything else is refused (and not echoed)."""
+    raw = data.get("id")
+    if raw is None:
+        return None
+    if isinstance(raw, str) and len(raw) <= MAX_ID_CHARS:
+        return raw
+    if isinstance(raw, int) and not isinstance(raw, bool) and abs(raw) <= MAX_ID_INT:
+        return raw
+    raise ProtocolError(
+        f"'id' must be a string of at most {MAX_ID_CHARS} characters or an integer within ±(2^63-1)"
+    )
+
+
+def parse_request(text: str | bytes, max_depth: int = MAX_JSON_DEPTH) -> Request:
     """Parse one inbound frame; raise ProtocolError with a message fit to send back to the client."""
-    try:
-        data = json.loads(text)
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ProtocolError(f"malformed JSON: {error}") from None
+    data = load_json(text, max_depth)
     if not isinstance(data, dict):
         raise ProtocolError("a request must be a JSON object")
-    raw_id = data.get("id")
-    request_id = None if raw_id is None else str(raw_id)
+    request_id = _request_id(data)
     op = data.get("op")
     if not isinstance(op, str):
         raise ProtocolError("missing 'op'", request_id)
@@ -142,7 +237,9 @@ def parse_request(text: str | bytes) -> Request:
     if op == "subscribe":
         compression = data.get("compression", "none")
         if compression not in (None, "none"):
-            raise ProtocolError(f"compression {compression!r} is not supported (only 'none')", request_id, op)
+            raise ProtocolError(
+                f"compression {preview(compression)} is not supported (only 'none')", request_id, op
+            )
         return Subscribe(
             _topic(data, op, request_id),
             _type(data, op, request_id, False),
@@ -152,7 +249,7 @@ def parse_request(text: str | bytes) -> Request:
         )
     if op == "unsubscribe":
         return Unsubscribe(_topic(data, op, request_id), request_id)
-    raise ProtocolError(f"unsupported op {op!r}", request_id, op)
+    raise ProtocolError(f"unsupported op {preview(op)}", request_id, op)
 
 
 def encode_status(status: Status) -> str:
@@ -208,9 +305,9 @@ class Incoming:
 def parse_server_frame(text: str | bytes) -> Incoming | Status:
     """Client side: parse a bridge frame; raise ProtocolError for anything unexpected."""
     try:
-        data = json.loads(text)
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ProtocolError(f"malformed JSON from server: {error}") from None
+        data = load_json(text, max_depth=256)  # ROS messages from the robot may nest deeper than requests
+    except ProtocolError as error:
+        raise ProtocolError(f"from server: {error}") from None
     if not isinstance(data, dict):
         raise ProtocolError("server frame is not a JSON object")
     op = data.get("op")
@@ -219,12 +316,17 @@ def parse_server_frame(text: str | bytes) -> Incoming | Status:
     if op == "status":
         level = data.get("level", "info")
         counts = data.get("counts") or {}
+        raw_id = data.get("id")
+        if not isinstance(counts, dict) or not all(
+            isinstance(v, int) and not isinstance(v, bool) for v in counts.values()
+        ):
+            raise ProtocolError("status 'counts' from server must map names to integers")
         return Status(
             level if level in ("error", "warning", "info") else "info",
             str(data.get("msg", "")),
-            None if data.get("id") is None else str(data["id"]),
+            raw_id if isinstance(raw_id, (str, int)) and not isinstance(raw_id, bool) else None,
             str(data.get("code", "")),
             str(data.get("topic", "")),
-            {str(k): int(v) for k, v in counts.items()} if isinstance(counts, dict) else {},
+            {str(k): v for k, v in counts.items()},
         )
     raise ProtocolError(f"unexpected server frame op {op!r}")

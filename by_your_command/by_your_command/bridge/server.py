@@ -12,14 +12,31 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
-from by_your_command.bridge.auth import check_bind, presented_token, token_matches
+from by_your_command.bridge.auth import check_bind, is_loopback, presented_token, token_matches
 from by_your_command.bridge.core import BridgeCore, ClientSession
+from by_your_command.bridge.flow import LogLimiter
+from by_your_command.bridge.protocol import preview
 
 log = logging.getLogger(__name__)
 
 # Frames above the protocol limit get a status error; far larger ones close the connection (1009)
-# so a client cannot make us buffer arbitrary amounts before we can say no.
+# so a client cannot make us buffer arbitrary amounts before we can say no. websockets counts
+# max_size in bytes of the frame payload, so a text frame of multi-byte characters cannot slip by.
 HARD_LIMIT_FACTOR = 4
+_WILDCARD_HOSTS = {"", "0.0.0.0", "::"}
+
+
+def normalize_origin(origin: str) -> str:
+    """`HTTP://LocalHost:9090/` → `http://localhost:9090` (scheme and host are case-insensitive)."""
+    return origin.strip().rstrip("/").lower()
+
+
+def own_origins(host: str, port: int) -> set[str]:
+    """The origins of a page the bridge itself serves (the monitor page) on its own port."""
+    names = {"127.0.0.1", "localhost", "[::1]"}
+    if host not in _WILDCARD_HOSTS and not is_loopback(host):
+        names.add(f"[{host}]" if ":" in host else host)
+    return {normalize_origin(f"http://{name}:{port}") for name in names}
 
 
 class BridgeServer:
@@ -27,6 +44,12 @@ class BridgeServer:
         self.core = core
         self._token = token
         self._server: Server | None = None
+        self._allowed_origins: set[str] = set()
+        # Connections admitted and not yet gone, counted from the handshake on: admission is one
+        # synchronous check-and-add, so concurrent handshakes cannot exceed max_clients.
+        self._admitted: set[ServerConnection] = set()
+        self._watchers: set[asyncio.Task[None]] = set()
+        self._log_limiter = LogLimiter(core.params.refusal_logs_per_s)
         self.refused_connections = 0
 
     @property
@@ -48,6 +71,9 @@ class BridgeServer:
             ping_interval=params.ping_interval_s or None,
             close_timeout=2,  # a client that stopped reading must not hold up shutdown for long
         )
+        self._allowed_origins = {normalize_origin(o) for o in params.allowed_origins} | own_origins(
+            params.host, self.port
+        )
         log.info(
             "bridge listening on %s:%d (token %s)",
             params.host,
@@ -59,20 +85,50 @@ class BridgeServer:
         if self._server is not None:
             self._server.close()
             await self._server.wait_closed()
+        for watcher in list(self._watchers):
+            watcher.cancel()
+        self.core.shutdown()
+
+    @property
+    def admitted(self) -> int:
+        return len(self._admitted)
 
     def _admit(self, connection: ServerConnection, request: Request) -> Response | None:
-        """Runs before the handshake completes: wrong token or too many clients → HTTP refusal."""
-        presented = presented_token(request.headers.get("Authorization"), request.path)
+        """Runs before the handshake completes: foreign browser origin, wrong token or too many
+        clients → HTTP refusal. Synchronous: nothing else runs between the check and the count."""
         peer = _peer(connection)
+        origin = request.headers.get("Origin")
+        # A browser always sends Origin; agents and roslibpy send none. A page from anywhere else
+        # may not drive the robot, even on loopback and even with a valid (stolen) token.
+        if origin is not None and normalize_origin(origin) not in self._allowed_origins:
+            self._refused(peer, f"browser origin {preview(origin)} is not allowed")
+            return _refusal(HTTPStatus.FORBIDDEN, "this origin may not connect to the bridge\n")
+        presented = presented_token(request.headers.get("Authorization"), request.path)
         if not token_matches(self._token, presented):
-            self.refused_connections += 1
-            log.warning("refused %s: %s token", peer, "missing" if presented is None else "wrong")
+            self._refused(peer, f"{'missing' if presented is None else 'wrong'} token")  # never the token
             return _refusal(HTTPStatus.UNAUTHORIZED, "a valid bridge token is required\n")
-        if len(self.core.sessions) >= self.core.params.max_clients:
-            self.refused_connections += 1
-            log.warning("refused %s: already %d clients", peer, self.core.params.max_clients)
+        if len(self._admitted) >= self.core.params.max_clients:
+            self._refused(peer, f"already {self.core.params.max_clients} clients")
             return _refusal(HTTPStatus.SERVICE_UNAVAILABLE, "too many bridge clients\n")
+        self._admitted.add(connection)
+        watcher = asyncio.get_running_loop().create_task(self._release_when_closed(connection))
+        self._watchers.add(watcher)
+        watcher.add_done_callback(self._watchers.discard)
         return None
+
+    def _refused(self, peer: str, reason: str) -> None:
+        self.refused_connections += 1
+        held = self._log_limiter.allow()  # connection attempts are client-driven: bound the log
+        if held is not None:
+            suffix = f" ({held} refusal log line(s) suppressed)" if held else ""
+            log.warning("refused %s: %s%s", peer, reason, suffix)
+
+    async def _release_when_closed(self, connection: ServerConnection) -> None:
+        """Frees the slot of a connection whose handshake failed (the handler never ran)."""
+        try:
+            await connection.wait_closed()
+        finally:
+            self._admitted.discard(connection)
 
     async def _handle(self, connection: ServerConnection) -> None:
         session = self.core.open_session(_peer(connection))
@@ -80,9 +136,14 @@ class BridgeServer:
         try:
             async for frame in connection:
                 self.core.handle_frame(session, frame)
+                if not self.core.accepts_more(session):
+                    await self.core.wait_accepts_more(session)  # TCP back-pressure on a heavy client
         except ConnectionClosed:
             pass
+        except Exception:  # a bug: this client is cut off, the bridge and the others go on
+            log.exception("client %d (%s): connection handler failed", session.id, session.peer)
         finally:
+            self._admitted.discard(connection)
             self.core.close_session(session)
             sender.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -94,9 +155,12 @@ class BridgeServer:
                 text = await session.queue.get()
                 await connection.send(text)  # waits while the socket's buffer is full: backpressure
                 session.sent_messages += 1
-                session.sent_bytes += len(text)
+                session.sent_bytes += len(text)  # outbound frames are ASCII JSON: characters are bytes
         except ConnectionClosed:
             pass
+        except Exception:  # never a silent dead sender: the client would just stop hearing us
+            log.exception("client %d (%s): send loop failed, closing", session.id, session.peer)
+            await connection.close(1011, "bridge send loop failed")
 
 
 def _peer(connection: ServerConnection) -> str:

@@ -4,6 +4,9 @@ Thin node: ROS parameters in, `BridgeCore`/`BridgeServer` (pure, in bridge/) on 
 in a thread, rclpy callbacks handed over with `call_soon_threadsafe`. All allow-listed ROS
 subscriptions and publishers are created at startup, so a client's first publish is not lost to
 discovery; messages of topics nobody subscribes to are not even converted.
+Losses before the bridge are counted from gaps in each message's publication sequence number
+(while the topic has one publisher) and reported to the topic's subscribers; a state topic whose
+last publisher leaves has its cached value forgotten.
 """
 
 from __future__ import annotations
@@ -12,14 +15,17 @@ import asyncio
 import json
 import logging
 import os
+import sys
 import threading
 from pathlib import Path
 from typing import Any
 
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.event_handler import QoSSubscriptionMatchedInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from rclpy.qos import QoSHistoryPolicy, QoSProfile
 
 from by_your_command.bridge.config import BridgeParams, TopicRule, load_allow_lists
 from by_your_command.bridge.core import BridgeCore, PublishError
@@ -32,6 +38,46 @@ from by_your_command.ros.convert import ConversionError, from_dict, message_clas
 
 _QOS = {"stream": _qos.STREAM, "reliable": _qos.RELIABLE, "latched": _qos.LATCHED}
 STARTUP_TIMEOUT_S = 10.0
+# ROS messages handed to the loop and not yet routed: beyond this the loop is hopelessly behind,
+# and further messages are counted as lost instead of growing the loop's queue without bound.
+MAX_IN_FLIGHT = 4096
+
+
+def subscription_qos(rule: TopicRule, audio_history_depth: int) -> QoSProfile:
+    """Audio is reliable and bursty (agents read faster than real time): a deeper history keeps
+    DDS from overwriting chunks while the bridge converts the previous ones."""
+    profile = _QOS[rule.qos]
+    if rule.topic_class != "audio" or profile.depth >= audio_history_depth:
+        return profile
+    return QoSProfile(
+        history=QoSHistoryPolicy.KEEP_LAST,
+        depth=audio_history_depth,
+        reliability=profile.reliability,
+        durability=profile.durability,
+    )
+
+
+class SequenceGaps:
+    """Counts messages lost upstream from gaps in `publication_sequence_number` (per publisher,
+    +1 per message). Only trusted while the topic has exactly one matched publisher: sequences of
+    two publishers interleave, and message info does not say which publisher sent a message."""
+
+    def __init__(self) -> None:
+        self.publishers = 0
+        self._last: int | None = None
+
+    def matched(self, current_count: int) -> None:
+        self.publishers = current_count
+        self._last = None  # a publisher came or went: start a new baseline
+
+    def lost_before(self, sequence: int | None) -> int:
+        if sequence is None or self.publishers != 1:
+            self._last = None
+            return 0
+        last, self._last = self._last, sequence
+        if last is None or sequence <= last:
+            return 0  # first message seen, or the publisher restarted
+        return sequence - last - 1
 
 
 class _RclpyLogHandler(logging.Handler):
@@ -56,14 +102,22 @@ class _RclpyLogHandler(logging.Handler):
 class _NodeGraph:
     """The core's RosGraph port on a real node. Called only on the asyncio loop thread."""
 
-    def __init__(self, node: Node, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, node: Node, loop: asyncio.AbstractEventLoop, audio_history_depth: int) -> None:
         self._node = node
         self._loop = loop
-        self._publishers: dict[str, tuple[Publisher, Any]] = {}
+        self._audio_history_depth = audio_history_depth
+        self._publishers: dict[str, Publisher] = {}
+        self._classes: dict[str, Any] = {}  # by type name; filled at startup, read by worker threads
         self._always: set[str] = set()
         self._wanted: set[str] = set()  # read by rclpy callbacks: set membership is atomic under the GIL
+        self._gaps: dict[str, SequenceGaps] = {}
+        # Hand-offs to the loop: `_posted` is written only by the rclpy thread, `_routed` only by the
+        # loop, so their difference is the backlog without a lock.
+        self._posted = 0
+        self._routed = 0
         self.core: BridgeCore | None = None
         self.conversion_errors = 0
+        self.callback_errors = 0
 
     def create_entities(
         self, subscribe: list[tuple[TopicRule, str]], publish: list[tuple[TopicRule, str]]
@@ -73,24 +127,68 @@ class _NodeGraph:
             if rule.topic_class == "state":
                 self._always.add(full)
                 self._wanted.add(full)  # the core remembers the current state for late subscribers
-            self._node.create_subscription(cls, full, self._forwarder(full), _QOS[rule.qos])
+            self._gaps[full] = SequenceGaps()
+            self._node.create_subscription(
+                cls,
+                full,
+                self._forwarder(full),
+                subscription_qos(rule, self._audio_history_depth),
+                event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched(full)),
+            )
         for rule, full in publish:
             cls = message_class(rule.type)
-            self._publishers[full] = (self._node.create_publisher(cls, full, _QOS[rule.qos]), cls)
+            self._classes[rule.type] = cls
+            self._publishers[full] = self._node.create_publisher(cls, full, _QOS[rule.qos])
+
+    def _on_matched(self, full: str) -> Any:
+        def matched(info: QoSSubscriptionMatchedInfo) -> None:
+            self._gaps[full].matched(info.current_count)
+            if info.current_count == 0 and self.core is not None:
+                try:
+                    self._post(self.core.forget_state, full)
+                except RuntimeError:
+                    pass  # the loop is closed: the node is shutting down
+
+        return matched
 
     def _forwarder(self, full: str) -> Any:
-        def forward(msg: Any) -> None:
-            if full not in self._wanted or self.core is None:
+        gaps = self._gaps[full]
+
+        def forward(msg: Any, info: dict[str, Any]) -> None:
+            if self.core is None:
                 return
             try:
-                text = json.dumps(to_dict(msg), separators=(",", ":"), allow_nan=False)
-            except (ValueError, TypeError) as error:
-                self.conversion_errors += 1
-                self._node.get_logger().error(f"cannot convert a message on {full}: {error}")
-                return
-            self._loop.call_soon_threadsafe(self.core.deliver, full, text)
+                lost = gaps.lost_before(info.get("publication_sequence_number"))
+                if lost:  # before the message that revealed the gap: the report reaches clients first
+                    self._post(self.core.report_lost, full, lost)
+                if full not in self._wanted:
+                    return
+                if self._posted - self._routed >= MAX_IN_FLIGHT:
+                    self._post(self.core.report_lost, full, 1)
+                    return
+                try:
+                    text = json.dumps(to_dict(msg), separators=(",", ":"), allow_nan=False)
+                except (ValueError, TypeError) as error:
+                    self.conversion_errors += 1
+                    self._node.get_logger().error(f"cannot convert a message on {full}: {error}")
+                    return
+                self._loop.call_soon_threadsafe(self._route, full, text)
+                self._posted += 1
+            except RuntimeError:
+                pass  # the loop is closed: the node is shutting down
+            except Exception as error:  # an exception here would stop the executor (and the node)
+                self.callback_errors += 1
+                self._node.get_logger().error(f"forwarding a message on {full} failed: {error!r}")
 
         return forward
+
+    def _post(self, callback: Any, *args: Any) -> None:
+        self._loop.call_soon_threadsafe(callback, *args)
+
+    def _route(self, full: str, text: str) -> None:
+        self._routed += 1
+        if self.core is not None:
+            self.core.deliver(full, text)
 
     def subscribe(self, rule: TopicRule, full_topic: str) -> None:
         self._wanted.add(full_topic)
@@ -102,14 +200,15 @@ class _NodeGraph:
     def advertise(self, rule: TopicRule, full_topic: str) -> None:
         pass  # publishers exist from startup
 
-    def publish(self, rule: TopicRule, full_topic: str, msg: dict[str, Any]) -> None:
-        publisher, cls = self._publishers[full_topic]
+    def convert(self, rule: TopicRule, msg: dict[str, Any]) -> Any:
         try:
-            message = from_dict(cls, msg)
+            return from_dict(self._classes[rule.type], msg)
         except ConversionError as error:
             raise PublishError(str(error)) from None
+
+    def publish(self, rule: TopicRule, full_topic: str, message: Any) -> None:
         try:
-            publisher.publish(message)
+            self._publishers[full_topic].publish(message)
         except Exception as error:  # rclpy raises plain RCLError/RuntimeError under overload
             raise PublishError(f"ROS publish failed: {error}") from None
 
@@ -128,7 +227,7 @@ class RosAiBridge(Node):
         bridge_log.setLevel(logging.INFO)
 
         self._loop = asyncio.new_event_loop()
-        self._graph = _NodeGraph(self, self._loop)
+        self._graph = _NodeGraph(self, self._loop, self.params.audio_history_depth)
         self._graph.create_entities(
             [(rule, resolve_topic(rule.topic, namespace)) for rule in allow.subscribe],
             [(rule, resolve_topic(rule.topic, namespace)) for rule in allow.publish],
@@ -142,6 +241,7 @@ class RosAiBridge(Node):
             else None
         )
         self._diagnostics_task: asyncio.Task[None] | None = None
+        self._reported_losses = 0  # WARN while drops/losses grow, OK again once they stop
         self._thread = threading.Thread(target=self._loop.run_forever, name="bridge-asyncio", daemon=True)
         self._thread.start()
         asyncio.run_coroutine_threadsafe(self._start(), self._loop).result(STARTUP_TIMEOUT_S)
@@ -172,19 +272,36 @@ class RosAiBridge(Node):
         assert self._diagnostics is not None
         while True:
             await asyncio.sleep(self.params.diagnostics_period_s)
-            self._diagnostics.publish(self._diagnostic_array())
+            try:
+                self._diagnostics.publish(self._diagnostic_array())
+            except Exception as error:  # keep reporting: one failed publish must not end diagnostics
+                self.get_logger().error(f"cannot publish diagnostics: {error!r}")
 
     def _diagnostic_array(self) -> DiagnosticArray:
         stats = self.core.stats()
-        dropped = sum(client.dropped for client in stats)
+        totals = self.core.totals()  # cumulative: clients that dropped messages and left still count
+        lost_now = totals.dropped + totals.lost_upstream
+        warn = lost_now > self._reported_losses
+        self._reported_losses = lost_now
         values = {
             "clients": len(stats),
+            "connections_total": totals.connections,
             "refused_connections": self.server.refused_connections,
             "ros_messages_delivered": self.core.delivered,
             "conversion_errors": self._graph.conversion_errors,
-            "dropped_total": dropped,
+            "callback_errors": self._graph.callback_errors,
+            "internal_errors": totals.internal_errors,
+            "dropped_total": totals.dropped,
+            "lost_upstream_total": totals.lost_upstream,
+            "rejected_total": totals.rejected,
+            "status_suppressed_total": totals.status_suppressed,
+            "received_total": totals.received,
+            "sent_messages_total": totals.sent_messages,
+            "sent_bytes_total": totals.sent_bytes,
             "subscribed_topics": ",".join(self.core.subscribed_topics()),
         }
+        for topic, count in sorted(self.core.lost_upstream.items()):
+            values[f"lost_upstream.{topic}"] = count
         for client in stats:
             prefix = f"client{client.id}"
             values.update(
@@ -197,12 +314,18 @@ class RosAiBridge(Node):
                     f"{prefix}.received": client.received,
                     f"{prefix}.rejected": client.rejected,
                     f"{prefix}.dropped": client.dropped,
+                    f"{prefix}.lost": client.lost,
+                    f"{prefix}.status_suppressed": client.status_suppressed,
+                    f"{prefix}.pending_publishes": client.pending_publishes,
                 }
             )
         status = DiagnosticStatus(
-            level=DiagnosticStatus.WARN if dropped else DiagnosticStatus.OK,
+            level=DiagnosticStatus.WARN if warn else DiagnosticStatus.OK,
             name=f"{self.get_fully_qualified_name()}: websocket bridge",
-            message=f"{len(stats)} client(s), {dropped} dropped",
+            message=(
+                f"{len(stats)} client(s); since start {totals.dropped} dropped, "
+                f"{totals.lost_upstream} lost before the bridge"
+            ),
             hardware_id="",
             values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
         )
@@ -223,7 +346,13 @@ class RosAiBridge(Node):
         super().destroy_node()
 
 
+# Large conversions run on worker threads that hold the GIL; Python hands it to the waiting event
+# loop only every switch interval (5 ms by default), which every light client would wait for.
+GIL_SWITCH_INTERVAL_S = 0.0005
+
+
 def main(args: list[str] | None = None) -> None:
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     run_node(RosAiBridge, args)
 
 

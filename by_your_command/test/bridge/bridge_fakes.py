@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import replace
@@ -30,12 +31,24 @@ NAMESPACE = "/robot1"
 
 
 class FakeGraph:
-    """Records what the core asks of ROS; rejects a non-string `data` like the real converter."""
+    """Records what the core asks of ROS; rejects a non-string `data` like the real converter.
+
+    `hold(text)` makes the conversion of a message whose `data` is `text` block (on its worker
+    thread) until `release(text)`: tests can prove what happens while a conversion is running.
+    """
 
     def __init__(self) -> None:
         self.subscribed: set[str] = set()
         self.advertised: set[str] = set()
         self.published: list[tuple[str, dict[str, Any]]] = []
+        self.converting: set[str] = set()  # held conversions that have started
+        self._holds: dict[str, threading.Event] = {}
+
+    def hold(self, data: str) -> None:
+        self._holds[data] = threading.Event()
+
+    def release(self, data: str) -> None:
+        self._holds[data].set()
 
     def subscribe(self, rule: TopicRule, full_topic: str) -> None:
         self.subscribed.add(full_topic)
@@ -46,12 +59,21 @@ class FakeGraph:
     def advertise(self, rule: TopicRule, full_topic: str) -> None:
         self.advertised.add(full_topic)
 
-    def publish(self, rule: TopicRule, full_topic: str, msg: dict[str, Any]) -> None:
+    def convert(self, rule: TopicRule, msg: dict[str, Any]) -> Any:
         if set(msg) - {"data"}:
             raise PublishError(f"unknown field(s) {sorted(set(msg) - {'data'})}")
-        if not isinstance(msg.get("data", ""), str):
+        data = msg.get("data", "")
+        if not isinstance(data, str):
             raise PublishError("data: expected a string")
-        self.published.append((full_topic, msg))
+        hold = self._holds.get(data)
+        if hold is not None:
+            self.converting.add(data)
+            if not hold.wait(10):
+                raise RuntimeError(f"test never released the conversion of {data[:20]!r}")
+        return msg
+
+    def publish(self, rule: TopicRule, full_topic: str, message: Any) -> None:
+        self.published.append((full_topic, message))
 
 
 def make_core(params: BridgeParams | None = None, allow: AllowLists = ALLOW) -> tuple[BridgeCore, FakeGraph]:

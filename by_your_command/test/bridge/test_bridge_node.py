@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import queue
 import re
@@ -13,10 +14,13 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from by_your_command_msgs.msg import AudioDataUtterance
 from byc_testing import INSTALL_LIB, running_process, wait_for
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from std_msgs.msg import String
+from std_msgs.msg import Bool, String
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import ClientConnection, connect
 
 from by_your_command.nodes import _qos
 
@@ -44,7 +48,9 @@ class Lines:
 
 
 @contextmanager
-def bridge_node(namespace: str, env: dict[str, str] | None = None) -> Iterator[tuple[int, Lines]]:
+def bridge_node(
+    namespace: str, env: dict[str, str] | None = None, params: tuple[str, ...] = ()
+) -> Iterator[tuple[int, Lines]]:
     args = [
         str(INSTALL_LIB / "ros_ai_bridge"),
         "--ros-args",
@@ -55,6 +61,8 @@ def bridge_node(namespace: str, env: dict[str, str] | None = None) -> Iterator[t
         "-p",
         "diagnostics_period_s:=0.2",
     ]
+    for param in params:
+        args += ["-p", param]
     with running_process(args, env=env) as process:
         lines = Lines(process)
         match = wait_for(
@@ -139,3 +147,125 @@ def test_binding_all_interfaces_without_a_token_is_a_startup_error(ros_namespace
     result = subprocess.run(args, capture_output=True, text=True, timeout=30, env=env)
     assert result.returncode != 0
     assert "without a token" in result.stdout + result.stderr
+
+
+class Reader:
+    """A plain WebSocket client reading on its own thread (fast, like an agent), frames as dicts."""
+
+    def __init__(self, port: int) -> None:
+        self.connection: ClientConnection = connect(f"ws://127.0.0.1:{port}/", compression=None).__enter__()
+        self.frames: list[dict[str, object]] = []
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                text = self.connection.recv()
+            except ConnectionClosed:
+                return
+            self.frames.append(json.loads(text))
+
+    def send(self, request: dict[str, object]) -> None:
+        self.connection.send(json.dumps(request))
+
+    def close(self) -> None:
+        self.connection.__exit__(None, None, None)
+        self._thread.join(timeout=5)
+
+
+def test_state_of_a_publisher_that_left_is_not_replayed(ros_namespace: str, graph_node: Node) -> None:
+    node = graph_node
+    with bridge_node(ros_namespace) as (port, _):
+        vad = node.create_publisher(Bool, "voice_activity", _qos.RELIABLE)
+        prompts = node.create_publisher(String, "prompt_text", _qos.RELIABLE)
+        wait_for(
+            lambda: vad.get_subscription_count() >= 1 and prompts.get_subscription_count() >= 1,
+            timeout=20,
+            what="bridge subscribes voice_activity and prompt_text",
+        )
+        early = Reader(port)
+        try:
+            early.send({"op": "subscribe", "topic": "voice_activity"})
+
+            def speaking_heard() -> bool:
+                vad.publish(Bool(data=True))  # until the subscription is live
+                return any(f.get("msg") == {"data": True} for f in list(early.frames))
+
+            wait_for(speaking_heard, timeout=20, interval=0.05, what="voice_activity True reaches the client")
+            node.destroy_publisher(vad)  # the VAD died while "the user is speaking"
+            wait_for(
+                lambda: any(f.get("code") == "publisher_gone" for f in list(early.frames)),
+                timeout=20,
+                what="subscribers told the state has no publisher",
+            )
+        finally:
+            early.close()
+        late = Reader(port)
+        try:
+            late.send({"op": "subscribe", "topic": "voice_activity"})
+            late.send({"op": "subscribe", "topic": "prompt_text"})
+
+            def prompt_heard() -> bool:
+                prompts.publish(String(data="marker"))
+                return any(f.get("topic") == "prompt_text" for f in list(late.frames))
+
+            wait_for(prompt_heard, timeout=20, interval=0.05, what="prompt_text reaches the late client")
+            # A replay would have been queued at subscribe time, ahead of every prompt_text message.
+            assert late.frames[0]["topic"] == "prompt_text", late.frames[:3]
+        finally:
+            late.close()
+
+
+def test_every_audio_message_is_delivered_or_reported_lost(ros_namespace: str, graph_node: Node) -> None:
+    """A one-deep DDS history loses most of a burst: whatever is lost must be reported, none silently."""
+    node = graph_node
+    burst = 2000
+    primer = 2**32 - 1  # chunk_sequence of the messages that make the path live (utterance_id = index)
+    voice = node.create_publisher(AudioDataUtterance, "prompt_voice", _qos.RELIABLE)
+    with bridge_node(ros_namespace, params=("audio_history_depth:=1",)) as (port, _):
+        wait_for(
+            lambda: voice.get_subscription_count() >= 1, timeout=20, what="bridge subscribes prompt_voice"
+        )
+        reader = Reader(port)
+        try:
+            reader.send({"op": "subscribe", "topic": "prompt_voice"})
+            primers = [0]
+
+            def primer_heard() -> bool:
+                voice.publish(AudioDataUtterance(utterance_id=primers[0], chunk_sequence=primer))
+                primers[0] += 1
+                return any(f.get("op") == "publish" for f in list(reader.frames))
+
+            wait_for(primer_heard, timeout=20, interval=0.3, what="prompt_voice reaches the client")
+            start = next(i for i, f in enumerate(reader.frames) if f.get("op") == "publish")
+            first = reader.frames[start]["msg"]["utterance_id"]  # type: ignore[index]
+            samples = [0] * 512
+            for sequence in range(burst):
+                voice.publish(
+                    AudioDataUtterance(chunk_sequence=sequence, int16_data=samples, sample_rate=16000)
+                )
+            expected = burst + primers[0] - 1 - first  # everything published after the first received
+
+            def accounted() -> tuple[int, int, int]:
+                frames = list(reader.frames)[start + 1 :]
+                delivered = sum(1 for f in frames if f.get("op") == "publish")
+                reported = {"lost": 0, "dropped": 0}
+                for f in frames:
+                    if f.get("op") == "status" and f.get("code") in reported:
+                        reported[str(f["code"])] += sum(f["counts"].values())  # type: ignore[union-attr]
+                return delivered, reported["lost"], reported["dropped"]
+
+            wait_for(
+                lambda: sum(accounted()) >= expected,
+                timeout=30,
+                what=f"{expected} messages delivered or reported (so far {accounted()})",
+            )
+            delivered, lost, dropped = accounted()
+            assert delivered + lost + dropped == expected
+            assert lost > 0, "the one-deep history should have overflowed: the test proved nothing"
+            print(
+                f"burst {burst}: expected {expected}, delivered {delivered}, lost {lost}, dropped {dropped}"
+            )
+        finally:
+            reader.close()

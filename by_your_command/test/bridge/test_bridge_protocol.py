@@ -9,7 +9,7 @@ from bridge_fakes import NAMESPACE, make_core
 
 from by_your_command.bridge.auth import InsecureBindError, check_bind, presented_token, token_matches
 from by_your_command.bridge.config import BridgeParams, ConfigError, parse_allow_lists
-from by_your_command.bridge.flow import SendQueue, TokenBucket
+from by_your_command.bridge.flow import LogLimiter, SendQueue, TokenBucket
 from by_your_command.bridge.names import resolve_topic
 from by_your_command.bridge.protocol import (
     Advertise,
@@ -234,3 +234,158 @@ def test_client_side_frame_parser() -> None:
     assert frame.counts == {"/a": 2}  # type: ignore[union-attr]
     with pytest.raises(ProtocolError):
         parse_server_frame('{"op":"weird"}')
+
+
+# --- hostile input: numbers, nesting, sizes, ids ---------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("frame", "fragment"),
+    [
+        ('{"op":"subscribe","topic":"a","throttle_rate":NaN}', "NaN is not a JSON number"),
+        ('{"op":"subscribe","topic":"a","queue_length":1e400}', "out of range"),
+        ('{"op":"subscribe","topic":"a","queue_length":-Infinity}', "-Infinity is not a JSON number"),
+        ('{"op":"subscribe","topic":"a","queue_length":' + "9" * 5000 + "}", "number is too large"),
+        ('{"op":"subscribe","topic":"a","queue_length":' + "9" * 30 + "}", "up to 2147483647"),
+        ('{"op":"publish","topic":"a","msg":{"data":' + "[" * 100 + "]" * 100 + "}}", "deeper than 32"),
+        ('{"op":"publish","topic":"a","msg":' + "[" * 100_000 + "]" * 100_000 + "}", "deeper than 32"),
+        ('{"op":"publish","topic":"a","msg":{"x":0.' + "1" * 100 + "}}", "too long"),
+    ],
+)
+def test_hostile_numbers_and_nesting_are_protocol_errors(frame: str, fragment: str) -> None:
+    with pytest.raises(ProtocolError, match=fragment):
+        parse_request(frame)
+
+
+def test_hostile_frames_become_status_errors_and_the_session_goes_on() -> None:
+    core, graph = make_core(BridgeParams(port=0, inline_convert_bytes=1_000_000))  # all on this thread
+    session = core.open_session("hostile")
+    for frame in (
+        '{"op":"subscribe","topic":"prompt_text","throttle_rate":NaN}',
+        '{"op":"subscribe","topic":"prompt_text","queue_length":1e400}',
+        '{"op":"publish","topic":"response_text","msg":{"data":' + "7" * 5000 + "}}",
+        "[" * 50_000 + "]" * 50_000,
+    ):
+        core.handle_frame(session, frame)
+    assert [s["code"] for s in statuses(session)] == ["bad_request"] * 4
+    core.handle_frame(session, '{"op":"publish","topic":"response_text","msg":{"data":"ok"}}')
+    assert graph.published == [("/robot1/response_text", {"data": "ok"})]
+
+
+def test_size_limit_counts_bytes_not_characters() -> None:
+    core, graph = make_core(BridgeParams(port=0, max_message_bytes=1_000_000))
+    session = core.open_session("euro")
+    euros = "€" * 600_000  # 1.8 MB of UTF-8 in 600,000 characters
+    core.handle_frame(session, '{"op":"publish","topic":"response_text","msg":{"data":"' + euros + '"}}')
+    [status] = statuses(session)
+    assert status["code"] == "too_large" and "1800" in str(status["msg"])
+    assert graph.published == []
+
+
+def test_request_ids_come_back_as_the_same_json_value() -> None:
+    core, _ = make_core()
+    session = core.open_session("ids")
+    for request_id in (7, "s7", -3, 0):
+        core.handle_frame(session, json.dumps({"op": "subscribe", "id": request_id, "topic": "secret"}))
+    assert [s["id"] for s in statuses(session)] == [7, "s7", -3, 0]
+    for bad_id in (True, 1.5, [1], {"a": 1}, "x" * 1000, 2**70):
+        core.handle_frame(session, json.dumps({"op": "subscribe", "id": bad_id, "topic": "prompt_text"}))
+    refused = statuses(session)
+    assert [s["code"] for s in refused] == ["bad_request"] * 6
+    assert all("id" not in s and "'id' must be" in str(s["msg"]) for s in refused)
+    assert core.subscribed_topics() == []
+
+
+def test_refusals_never_echo_huge_client_strings() -> None:
+    core, _ = make_core()
+    session = core.open_session("echo")
+    huge = "t" * 200_000
+    core.handle_frame(session, json.dumps({"op": "subscribe", "topic": huge}))
+    core.handle_frame(session, json.dumps({"op": "fly" + huge}))
+    core.handle_frame(session, json.dumps({"op": "publish", "topic": "response_text", "msg": {huge: 1}}))
+    core.handle_frame(
+        session, json.dumps({"op": "publish", "topic": "response_text", "msg": {"data": [huge]}})
+    )
+    replies = [json.dumps(s) for s in statuses(session)]
+    assert len(replies) == 4 and all(len(reply) < 600 for reply in replies), replies
+
+
+def test_status_replies_are_bounded_in_bytes_and_coalesced() -> None:
+    params = BridgeParams(port=0, status_queue_bytes=4096, rate_burst=100_000)
+    core, _ = make_core(params)
+    session = core.open_session("never reads")
+    for index in range(2000):
+        core.handle_frame(
+            session, json.dumps({"op": "subscribe", "id": "r" * 100, "topic": f"no_such_{index}"})
+        )
+    assert session.queue.queued_control_bytes <= 4096
+    replies = statuses(session)
+    summary = replies[0]
+    assert summary["code"] == "suppressed"
+    individual = [r for r in replies if r["code"] == "not_allowed"]
+    assert summary["counts"] == {"not_allowed": 2000 - len(individual)}
+    assert core.totals().status_suppressed == 2000 - len(individual) and core.totals().rejected == 2000
+
+
+def test_refusal_log_lines_are_rate_limited_across_clients(caplog: pytest.LogCaptureFixture) -> None:
+    now = [0.0]
+    core, _ = make_core(BridgeParams(port=0, refusal_logs_per_s=2.0))
+    core._log_limiter = LogLimiter(2.0, clock=lambda: now[0])  # a frozen clock: no refill during the flood
+    with caplog.at_level("WARNING", logger="by_your_command.bridge.core"):
+        for client in range(100):  # reconnecting does not reset the budget
+            session = core.open_session(f"flood{client}")
+            for _ in range(5):
+                core.handle_frame(session, "{oops")
+            core.close_session(session)
+        assert len(caplog.records) == 20
+        now[0] += 1.0
+        core.handle_frame(core.open_session("later"), "{oops")
+    assert "480 refusal log line(s) suppressed" in caplog.records[-1].getMessage()
+
+
+def test_totals_keep_counting_after_clients_leave() -> None:
+    core, _ = make_core(BridgeParams(port=0, send_queue_messages=2))
+    session = core.open_session("slow")
+    core.handle_frame(session, '{"op":"subscribe","topic":"prompt_text"}')
+    core.handle_frame(session, "{oops")
+    for index in range(5):
+        core.deliver("/robot1/prompt_text", f'{{"data":"{index}"}}')
+    core.report_lost("/robot1/prompt_text", 4)
+    session.sent_messages, session.sent_bytes = 2, 40
+    core.close_session(session)
+    totals = core.totals()
+    assert (totals.dropped, totals.rejected, totals.received, totals.lost_upstream) == (3, 1, 2, 4)
+    assert (totals.sent_messages, totals.sent_bytes, totals.connections) == (2, 40, 1)
+    assert core.stats() == []
+
+
+def test_upstream_losses_are_reported_to_subscribers() -> None:
+    core, _ = make_core()
+    session = core.open_session("listener")
+    core.handle_frame(session, '{"op":"subscribe","topic":"prompt_voice"}')
+    core.deliver("/robot1/prompt_voice", '{"chunk_sequence":0}')
+    core.report_lost("/robot1/prompt_voice", 3)
+    core.deliver("/robot1/prompt_voice", '{"chunk_sequence":4}')
+    frames = []
+    while (text := session.queue.take_nowait()) is not None:
+        frames.append(json.loads(text))
+    assert frames[0]["op"] == "status" and frames[0]["code"] == "lost"
+    assert frames[0]["counts"] == {"/robot1/prompt_voice": 3}
+    assert [f["msg"]["chunk_sequence"] for f in frames[1:]] == [0, 4]
+
+
+def test_state_of_a_topic_without_publisher_is_forgotten() -> None:
+    core, _ = make_core()
+    early = core.open_session("early")
+    core.handle_frame(early, '{"op":"subscribe","topic":"voice_activity"}')
+    core.deliver("/robot1/voice_activity", '{"data":true}')
+    assert json.loads(early.queue.take_nowait() or "")["msg"] == {"data": True}
+    core.forget_state("/robot1/voice_activity")
+    told = json.loads(early.queue.take_nowait() or "")
+    assert (told["code"], told["topic"]) == ("publisher_gone", "voice_activity")
+    late = core.open_session("late")
+    core.handle_frame(late, '{"op":"subscribe","topic":"voice_activity"}')
+    assert late.queue.take_nowait() is None  # no stale "the user is speaking"
+    core.deliver("/robot1/voice_activity", '{"data":false}')  # a new publisher: remembered again
+    core.handle_frame(core.open_session("later"), '{"op":"subscribe","topic":"voice_activity"}')
+    assert json.loads(core.sessions[-1].queue.take_nowait() or "")["msg"] == {"data": False}

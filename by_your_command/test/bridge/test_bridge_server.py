@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 from collections.abc import Coroutine
 from typing import Any
 
@@ -13,7 +14,7 @@ from bridge_fakes import NAMESPACE, eventually, make_core, running_bridge
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from by_your_command.bridge.client import BridgeClient, BridgeRefused, BridgeUnavailable, ClientOptions
+from by_your_command.bridge.client import BridgeClient, BridgeRefused, ClientOptions
 from by_your_command.bridge.config import BridgeParams
 from by_your_command.bridge.server import BridgeServer
 
@@ -152,61 +153,6 @@ def test_a_slow_client_neither_stalls_others_nor_grows_memory() -> None:
     run(scenario())
 
 
-def test_client_reconnects_and_resubscribes() -> None:
-    async def scenario() -> None:
-        core, graph = make_core(BridgeParams(port=0))
-        server = BridgeServer(core, "")
-        await server.start()
-        port = server.port
-        client = BridgeClient(
-            f"ws://127.0.0.1:{port}/", ClientOptions(backoff_initial_s=0.05, backoff_max_s=0.2)
-        )
-        await client.start()
-        await client.wait_connected(5)
-        await client.subscribe("prompt_text")
-        await client.advertise("response_text", "std_msgs/String")
-        await eventually(lambda: graph.subscribed, what="first subscription")
-        await server.stop()
-        await eventually(lambda: not client.connected, what="disconnect noticed")
-        with pytest.raises(BridgeUnavailable):
-            await client.publish("response_text", {"data": "lost"})
-        core2, graph2 = make_core(BridgeParams(port=port))
-        server2 = BridgeServer(core2, "")
-        await server2.start()
-        try:
-            await client.wait_connected(5)
-            await eventually(lambda: graph2.subscribed and graph2.advertised, what="replayed requests")
-            core2.deliver(f"{NAMESPACE}/prompt_text", '{"data":"back"}')
-            assert (await client.receive(5)).msg == {"data": "back"}
-            assert client.connects == 2
-        finally:
-            await client.close()
-            await server2.stop()
-
-    run(scenario())
-
-
-def test_client_receive_queue_is_bounded() -> None:
-    async def scenario() -> None:
-        async with running_bridge() as (server, graph):
-            async with BridgeClient(url(server), ClientOptions(receive_queue=5)) as client:
-                await client.wait_connected(5)
-                await client.subscribe("prompt_text")
-                await eventually(lambda: graph.subscribed, what="subscription")
-                for index in range(20):
-                    server.core.deliver(f"{NAMESPACE}/prompt_text", f'{{"data":"{index}"}}')
-                await eventually(lambda: client.dropped == 15, what="15 drops")
-                assert [(await client.receive(1)).msg["data"] for _ in range(5)] == [
-                    "15",
-                    "16",
-                    "17",
-                    "18",
-                    "19",
-                ]
-
-    run(scenario())
-
-
 def test_too_many_clients_are_refused() -> None:
     async def scenario() -> None:
         async with running_bridge(max_clients=1) as (server, _):
@@ -215,5 +161,188 @@ def test_too_many_clients_are_refused() -> None:
                 with pytest.raises(InvalidStatus) as refused:
                     await websockets.connect(url(server))
                 assert refused.value.response.status_code == 503
+
+    run(scenario())
+
+
+def test_foreign_browser_origins_are_refused_even_with_a_token() -> None:
+    async def scenario() -> None:
+        async with running_bridge(token="s3cret", allowed_origins=("https://Monitor.example:8443",)) as (
+            server,
+            _,
+        ):
+            bearer = {"Authorization": "Bearer s3cret"}
+            for origin in ("http://evil.example", "null", f"http://127.0.0.1:{server.port + 1}"):
+                with pytest.raises(InvalidStatus) as refused:
+                    await connect(url(server), origin=origin, additional_headers=bearer)  # type: ignore[arg-type]
+                assert refused.value.response.status_code == 403
+            for origin in (f"http://localhost:{server.port}", f"http://127.0.0.1:{server.port}/"):
+                async with connect(url(server), origin=origin, additional_headers=bearer):  # type: ignore[arg-type]
+                    pass  # the bridge's own (monitor page) origins
+            async with connect(url(server), origin="https://monitor.example:8443", additional_headers=bearer):  # type: ignore[arg-type]
+                pass  # allow-listed
+            async with connect(url(server), additional_headers=bearer):
+                pass  # no Origin: not a browser (agents, roslibpy)
+            with pytest.raises(InvalidStatus) as refused:
+                await connect(url(server), origin=f"http://localhost:{server.port}")  # type: ignore[arg-type]
+            assert refused.value.response.status_code == 401  # an allowed origin still needs the token
+            assert server.refused_connections == 4
+
+    run(scenario())
+
+
+def test_foreign_origin_refused_on_loopback_without_token(caplog: pytest.LogCaptureFixture) -> None:
+    async def scenario() -> None:
+        async with running_bridge() as (server, _):
+            with pytest.raises(InvalidStatus) as refused:
+                await connect(url(server), origin="http://evil.example" + "x" * 5_000)  # type: ignore[arg-type]
+            assert refused.value.response.status_code == 403
+            assert not server.core.sessions
+
+    with caplog.at_level("WARNING", logger="by_your_command.bridge.server"):
+        run(scenario())
+    [line] = [r.getMessage() for r in caplog.records if "origin" in r.getMessage()]
+    assert "evil.example" in line and len(line) < 300
+
+
+class LateHandlerServer(BridgeServer):
+    """Handlers that start only when the test opens the gate: the window in which admission by
+    counting open sessions let every concurrent handshake through."""
+
+    def __init__(self, *args: Any) -> None:
+        super().__init__(*args)
+        self.gate = asyncio.Event()
+
+    async def _handle(self, connection: Any) -> None:
+        await self.gate.wait()
+        await super()._handle(connection)
+
+
+def test_concurrent_connects_never_exceed_max_clients() -> None:
+    async def scenario() -> None:
+        core, _ = make_core(BridgeParams(port=0, max_clients=3))
+        server = LateHandlerServer(core, "")
+        await server.start()
+        try:
+
+            async def attempt() -> Any:
+                try:
+                    return await connect(url(server), open_timeout=10)
+                except InvalidStatus as error:
+                    return error.response.status_code
+
+            results = await asyncio.gather(*(attempt() for _ in range(30)))
+            connections = [r for r in results if not isinstance(r, int)]
+            assert len(connections) == 3 and {r for r in results if isinstance(r, int)} == {503}
+            server.gate.set()
+            await eventually(lambda: len(core.sessions) == 3, what="the admitted clients' sessions")
+            for connection in connections:
+                await connection.close()
+            await eventually(lambda: server.admitted == 0 and not core.sessions, what="slots released")
+            async with connect(url(server)):
+                await eventually(lambda: core.sessions, what="a new client after the others left")
+        finally:
+            await server.stop()
+
+    run(scenario())
+
+
+def test_hostile_numbers_get_a_status_error_not_a_closed_connection() -> None:
+    async def scenario() -> None:
+        async with running_bridge() as (server, _):
+            async with connect(url(server), compression=None) as hostile:
+                for frame in (
+                    '{"op":"subscribe","id":1,"topic":"prompt_text","throttle_rate":NaN}',
+                    '{"op":"subscribe","id":2,"topic":"prompt_text","queue_length":1e400}',
+                    '{"op":"subscribe","id":3,"topic":"prompt_text","queue_length":' + "9" * 5000 + "}",
+                    '{"op":"subscribe","id":4,"topic":"prompt_text","x":' + "[" * 5000 + "]" * 5000 + "}",
+                ):
+                    await hostile.send(frame)
+                replies = [json.loads(await hostile.recv()) for _ in range(4)]
+                # Refused while parsing, so their ids are unknown: the reply says why, without one.
+                assert [(r["code"], r.get("id")) for r in replies] == [("bad_request", None)] * 4
+                assert "NaN" in replies[0]["msg"] and "out of range" in replies[1]["msg"]
+                await hostile.send('{"op":"subscribe","id":5,"topic":"nope"}')
+                assert json.loads(await hostile.recv())["id"] == 5  # still connected, id still an integer
+
+    run(scenario())
+
+
+def test_a_client_that_never_reads_cannot_grow_the_bridge_with_refusals() -> None:
+    async def scenario() -> None:
+        async with running_bridge(rate_burst=100_000) as (server, _):
+            tiny_window = socket.create_connection(("127.0.0.1", server.port))
+            tiny_window.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # its replies back up at once
+            async with connect(
+                url(server), sock=tiny_window, compression=None, max_queue=1, close_timeout=0.2
+            ) as silent:
+                await eventually(lambda: server.core.sessions, what="session")
+                session = server.core.sessions[0]
+                [connection] = list(server._server.connections)  # type: ignore[union-attr]
+                big_topic = json.dumps({"op": "subscribe", "topic": "a" * 200_000})
+
+                async def flood() -> None:
+                    for _ in range(200):
+                        await silent.send(big_topic)  # blocks once the bridge stops reading from it
+
+                flooding = asyncio.ensure_future(flood())
+                await eventually(lambda: session.rejected >= 40, what="40 refusals", timeout=20)
+                held = session.queue.queued_control_bytes + connection.transport.get_write_buffer_size()
+                assert held <= 1000 * session.rejected  # a short reply each, never the 200 KB topic
+                flooding.cancel()
+                silent.transport.abort()  # it never reads: a polite close would wait for it
+
+    run(scenario())
+
+
+def test_a_heavy_conversion_does_not_block_other_clients_and_order_is_kept() -> None:
+    heavy = "H" * 3000  # above inline_convert_bytes: converted on a worker thread
+
+    async def scenario() -> None:
+        async with running_bridge(inline_convert_bytes=1000) as (server, graph):
+            graph.hold(heavy)
+            async with connect(url(server)) as slowpoke, connect(url(server)) as speaker:
+                await slowpoke.send(
+                    json.dumps({"op": "publish", "topic": "response_text", "msg": {"data": heavy}})
+                )
+                await slowpoke.send('{"op":"publish","topic":"response_text","msg":{"data":"after heavy"}}')
+                await eventually(lambda: heavy in graph.converting, what="heavy conversion running")
+                await speaker.send('{"op":"publish","topic":"response_cmd","msg":{"data":"light"}}')
+                await eventually(lambda: graph.published, what="light publish while heavy converts")
+                assert graph.published == [(f"{NAMESPACE}/response_cmd", {"data": "light"})]
+                assert heavy in graph.converting  # still held: the light one did not wait for it
+                graph.release(heavy)
+                await eventually(lambda: len(graph.published) == 3, what="heavy client's publishes")
+                assert [msg["data"] for _, msg in graph.published[1:]] == [heavy, "after heavy"]
+
+    run(scenario())
+
+
+def test_a_heavy_client_is_paused_not_buffered_while_its_conversion_runs() -> None:
+    heavy = "H" * 3000
+
+    async def scenario() -> None:
+        async with running_bridge(inline_convert_bytes=1000, pending_publish_messages=4) as (server, graph):
+            graph.hold(heavy)
+            async with connect(url(server)) as pusher:
+                await pusher.send(
+                    json.dumps({"op": "publish", "topic": "response_text", "msg": {"data": heavy}})
+                )
+                await eventually(lambda: heavy in graph.converting, what="heavy conversion running")
+                session = server.core.sessions[0]
+                sends = [
+                    asyncio.ensure_future(
+                        pusher.send(
+                            json.dumps({"op": "publish", "topic": "response_text", "msg": {"data": str(i)}})
+                        )
+                    )
+                    for i in range(40)
+                ]
+                await eventually(lambda: len(session.pending) == 4, what="bound reached")
+                assert not server.core.accepts_more(session) and session.received == 5  # reading paused
+                graph.release(heavy)
+                await asyncio.gather(*sends)
+                await eventually(lambda: len(graph.published) == 41, what="everything published in order")
+                assert [msg["data"] for _, msg in graph.published] == [heavy] + [str(i) for i in range(40)]
 
     run(scenario())

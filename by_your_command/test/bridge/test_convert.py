@@ -7,7 +7,7 @@ import json
 import math
 
 import pytest
-from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
+from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Twist
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -112,3 +112,51 @@ def test_shipped_allow_lists_parse_and_name_installed_types() -> None:
     for rule in (*allow.subscribe, *allow.publish):
         assert not rule.topic.startswith("/"), "shipped topics must be relative (namespaces move the graph)"
         message_class(rule.type)
+
+
+def test_interruption_names_what_it_cuts() -> None:
+    data = {
+        "header": {"stamp": {"sec": 12, "nanosec": 5}, "frame_id": ""},
+        "stream_id": "reply-7",
+        "reason": "barge_in",
+    }
+    interruption = from_dict(message_class("by_your_command_msgs/msg/Interruption"), data)
+    assert isinstance(interruption, Interruption)
+    assert (interruption.stream_id, interruption.reason, interruption.header.stamp.sec) == (
+        "reply-7",
+        "barge_in",
+        12,
+    )
+    assert to_dict(interruption) == data
+    with pytest.raises(ConversionError, match="unknown field"):
+        from_dict(Interruption, {"data": True})  # the old Bool shape is refused, not half-accepted
+
+
+def test_shipped_interruption_signal_has_the_interruption_type() -> None:
+    from pathlib import Path
+
+    from by_your_command.bridge.config import load_allow_lists
+
+    shipped = load_allow_lists(Path(__file__).resolve().parents[2] / "config" / "bridge.yaml")
+    [rule] = [rule for rule in shipped.publish if rule.topic == "interruption_signal"]
+    assert rule.type == "by_your_command_msgs/msg/Interruption" and message_class(rule.type) is Interruption
+
+
+def test_audio_fast_path_keeps_the_exact_checks() -> None:
+    samples = list(range(-32768, 32768, 7))
+    assert list(from_dict(AudioChunk, {"data": samples}).data) == samples
+    for bad, fragment in (
+        ([0] * 10 + [32768], r"data\[10\]: 32768 is out of range"),
+        ([0, True], r"data\[1\]: expected an integer"),
+        ([0, 1.0], r"data\[1\]: expected an integer"),
+    ):
+        with pytest.raises(ConversionError, match=fragment):
+            from_dict(AudioChunk, {"data": bad})
+
+
+def test_errors_quote_client_values_briefly() -> None:
+    huge = "x" * 100_000
+    for data in ({"sample_rate": huge}, {"stream_id": [huge] * 10}, {huge: 1}, {"data": [huge]}):
+        with pytest.raises(ConversionError) as error:
+            from_dict(AudioChunk, data)
+        assert len(str(error.value)) < 200, str(error.value)[:300]
