@@ -76,6 +76,12 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+# Bridge status codes that report messages that will never arrive, and what the agent is told.
+_LOSS_REASONS = {
+    "dropped": "the bridge dropped them (this client fell behind)",
+    "lost": "lost before the bridge (ROS history overwritten)",
+}
+
 
 @dataclass(frozen=True)
 class ClientOptions:
@@ -369,13 +375,14 @@ class BridgeClient:
         self.statuses.append(status)
         if status.level != "info":
             log.warning("bridge %s [%s]: %s", status.level, status.code[:40] or "-", status.msg[:300])
-        if status.code == "dropped":
+        reason = _LOSS_REASONS.get(status.code)
+        if reason is not None:
             now = time.monotonic()
             for reported, count in status.counts.items():
                 topic = self._classes.resolve(reported)
                 topic_class = self._classes.class_of(topic)
                 self._bridge_dropped[topic_class] += count
-                self._inbox.put_lost(Lost(topic, topic_class, count, "the bridge dropped them", now))
+                self._inbox.put_lost(Lost(topic, topic_class, count, reason, now))
             self._arrived.set()
         if self._on_status is not None:
             try:

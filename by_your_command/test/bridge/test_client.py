@@ -197,6 +197,27 @@ def test_malformed_frames_and_odd_status_fields_are_counted_and_skipped() -> Non
     run(scenario())
 
 
+def test_losses_before_the_bridge_are_delivered_as_lost_with_their_reason() -> None:
+    # The bridge reports ROS-side losses (history overwritten before it read them) as `lost`.
+    report = {"op": "status", "level": "warning", "msg": "x", "code": "lost", "counts": {"prompt_voice": 3}}
+
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_voice")
+        try:
+            await bridge.send(publish("prompt_voice", chunk(0)), json.dumps(report))
+            await bridge.send(publish("prompt_voice", chunk(4, end=True)))
+            first, lost, last = await receive_all(client, 3)
+            assert isinstance(first, Received) and isinstance(last, Received)
+            assert isinstance(lost, Lost) and (lost.topic, lost.count) == ("prompt_voice", 3)
+            assert "before the bridge" in lost.reason
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
 def test_an_unexpected_error_in_the_connection_loop_does_not_stop_reconnecting(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
