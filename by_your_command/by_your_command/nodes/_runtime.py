@@ -2,31 +2,168 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
+from types import FrameType
+from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.duration import Duration
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.logging import get_logger
 from rclpy.node import Node
+from rclpy.qos import QoSReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SPIN_STOP_TIMEOUT_S = 5.0  # a callback still running after this is abandoned (logged)
+ACK_TIMEOUT_S = 2.0  # total wait for subscribers to acknowledge the last reliable messages
+EXIT_FAILED = 1
+
+_log = get_logger("run_node")
+
+
+class _StopRequest:
+    """Why and when the main thread should stop waiting: a signal or a dead executor thread."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.signals = 0
+        self.failure: BaseException | None = None
+
+    def on_signal(self, signum: int, _frame: FrameType | None) -> None:
+        self.signals += 1
+        if self.signals > 1:
+            # The graceful path is stuck (a hook, a callback, DDS): the user insists.
+            sys.stderr.write(f"run_node: second {signal.Signals(signum).name}: exiting now\n")
+            sys.stderr.flush()
+            os._exit(128 + signum)
+        self.event.set()
+
+    def on_failure(self, error: BaseException) -> None:
+        self.failure = error
+        self.event.set()
+
+
+class _Spinner:
+    """Spins the executor in a thread until told to stop; reports an escaping exception."""
+
+    def __init__(self, executor: Executor, stop: _StopRequest) -> None:
+        self._executor = executor
+        self._stop = stop
+        self._done: Future = Future()
+        self._thread = threading.Thread(target=self._run, name="executor", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self._executor.spin_until_future_complete(self._done)
+        except ExternalShutdownException:
+            self._stop.event.set()  # the context was shut down from elsewhere: stop quietly
+        except BaseException as error:  # a callback raised: the node must not spin on half-dead
+            _log.error(f"executor thread died: {type(error).__name__}: {error}")
+            self._stop.on_failure(error)
+        else:
+            self._stop.event.set()  # spin returned by itself (context no longer ok)
+
+    def stop(self) -> bool:
+        """Ask the spin loop to return and wait for it; False when a callback did not finish in time."""
+        self._done.set_result(None)  # wakes the executor's wait
+        self._thread.join(SPIN_STOP_TIMEOUT_S)
+        return not self._thread.is_alive()
+
+
+def _install_handlers(stop: _StopRequest) -> dict[int, Any]:
+    previous: dict[int, Any] = {}
+    if threading.current_thread() is not threading.main_thread():
+        return previous  # only the main thread may set handlers (a test calling run_node in a thread)
+    for signum in STOP_SIGNALS:
+        previous[signum] = signal.signal(signum, stop.on_signal)
+    return previous
+
+
+def _restore_handlers(previous: dict[int, Any]) -> None:
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
+
+
+def _call_before_shutdown(node: Node) -> bool:
+    hook = getattr(node, "before_shutdown", None)
+    if hook is None:
+        return True
+    try:
+        hook()
+    except Exception as error:  # still shut down; the exit code says it was not clean
+        _log.error(f"{node.get_name()}.before_shutdown failed: {type(error).__name__}: {error}")
+        return False
+    return True
+
+
+def _wait_for_acks(node: Node, budget_s: float) -> None:
+    """Let reliable subscribers receive what was just published before the participant goes away."""
+    deadline = time.monotonic() + budget_s
+    for publisher in list(node.publishers):
+        if publisher.qos_profile.reliability != QoSReliabilityPolicy.RELIABLE:
+            continue
+        left = max(deadline - time.monotonic(), 0.0)
+        try:
+            acked = publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        except Exception as error:  # a publisher already gone: nothing left to wait for
+            _log.warning(f"cannot wait for acks on {publisher.topic_name}: {error}")
+            continue
+        if not acked:
+            _log.warning(f"not every subscriber of {publisher.topic_name} acknowledged within {budget_s} s")
 
 
 def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None, threads: int = 1) -> None:
-    """Create the node, spin until SIGINT/SIGTERM, then tear everything down.
+    """Create the node, spin until SIGINT/SIGTERM, then stop it cleanly; raise SystemExit(1) on failure.
 
-    rclpy's own handlers (installed by init for SIGINT and SIGTERM) shut the context down and
-    wake the executor at once, so `terminate()` ends the process promptly and the node is still
-    destroyed cleanly (files flushed, devices closed). A Python-level handler would only run
-    when the executor's wait returned, which can be seconds.
+    rclpy's own signal handlers are off: they shut the context down at once, so nothing the node
+    publishes while stopping (an utterance's end marker, "not speaking") would reach anyone. Instead
+    the executor spins in a thread and the main thread waits on an event, which a signal interrupts
+    at once (lock waits are interruptible on POSIX). On SIGINT/SIGTERM, in order:
+
+    1. the executor stops (a callback in flight finishes, bounded by SPIN_STOP_TIMEOUT_S; with
+       threads > 1, callbacks already handed to the pool may still be running);
+    2. `node.before_shutdown()` runs if the node defines it, with the context still alive and no
+       callback running concurrently: the place to publish final state;
+    3. reliable publishers wait (at most ACK_TIMEOUT_S in total) until subscribers acknowledged;
+    4. the node is destroyed (`destroy_node` may still publish and close devices), rclpy shut down.
+
+    A second signal exits at once (status 128 + signal). An exception escaping a callback is
+    logged and stops the node the same way, then the process exits with status 1.
     """
-    rclpy.init(args=list(args) if args is not None else None)
-    node = None
+    rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
+    stop = _StopRequest()
+    previous = _install_handlers(stop)
+    node: Node | None = None
+    executor: Executor | None = None
+    clean = True
     try:
         node = make_node()
         executor = SingleThreadedExecutor() if threads <= 1 else MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spinner = _Spinner(executor, stop)
+        spinner.start()
+        stop.event.wait()
+        if not spinner.stop():
+            _log.error(f"a callback still runs after {SPIN_STOP_TIMEOUT_S} s: stopping without it")
+            clean = False
+        clean = _call_before_shutdown(node) and clean and stop.failure is None
+        _wait_for_acks(node, ACK_TIMEOUT_S)
     finally:
+        if executor is not None:
+            executor.shutdown(timeout_sec=0)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        _restore_handlers(previous)
+    if not clean:
+        raise SystemExit(EXIT_FAILED)

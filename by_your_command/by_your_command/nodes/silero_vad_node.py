@@ -13,11 +13,12 @@ import time
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
 from rclpy.node import Node
+from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from std_msgs.msg import Bool, String
 
 from by_your_command.nodes._audio_msgs import int16_field, pcm_of
 from by_your_command.nodes._params import declare_config
-from by_your_command.nodes._qos import LATCHED, RELIABLE, STREAM
+from by_your_command.nodes._qos import LATCHED, RELIABLE
 from by_your_command.vad.attention import Attention, PhraseCommand, PhraseMatcher
 from by_your_command.vad.config import VadConfig
 from by_your_command.vad.detector import VoiceDetector
@@ -25,8 +26,13 @@ from by_your_command.vad.model import SileroModel
 from by_your_command.vad.segmenter import Event, UtteranceChunk, VoiceActivity
 
 NS_PER_S = 1_000_000_000
+# Best effort like every audio stream, but a deeper queue than STREAM's: a lost block now ends the
+# stream (gap), so a scheduling stall of up to ~2 s of 32 ms blocks is absorbed instead.
+AUDIO_IN = QoSProfile(
+    history=QoSHistoryPolicy.KEEP_LAST, depth=64, reliability=QoSReliabilityPolicy.BEST_EFFORT
+)
 STATS_PERIOD_S = 10.0
-HOUSEKEEPING_PERIOD_S = 0.2  # audio timeout checks; also keeps the executor responsive to SIGTERM
+HOUSEKEEPING_PERIOD_S = 0.2  # audio timeout checks
 
 
 def _to_ns(stamp: Time) -> int:
@@ -39,11 +45,13 @@ class SileroVadNode(Node):
         self.config = declare_config(self, VadConfig)
         self.detector = VoiceDetector(self.config, SileroModel())
         self.attention = Attention(awake=self.config.start_awake)
-        self.phrases = PhraseMatcher(self.config.wake_phrases, self.config.sleep_phrases)
+        self.phrases = PhraseMatcher(
+            self.config.wake_phrases, self.config.sleep_phrases, self.config.robot_name
+        )
         self.activity_pub = self.create_publisher(Bool, "voice_activity", RELIABLE)
         self.voice_pub = self.create_publisher(AudioDataUtterance, "prompt_voice", RELIABLE)
         self.state_pub = self.create_publisher(String, "attention_state", LATCHED)
-        self.create_subscription(AudioChunk, self.config.input_topic, self._on_audio, STREAM)
+        self.create_subscription(AudioChunk, self.config.input_topic, self._on_audio, AUDIO_IN)
         self.create_subscription(Bool, "wake_cmd", self._on_wake_cmd, RELIABLE)
         self.create_subscription(Bool, "voice_active", self._on_voice_active, RELIABLE)
         self.create_subscription(String, "prompt_text", self._on_prompt_text, RELIABLE)
@@ -67,15 +75,28 @@ class SileroVadNode(Node):
         if not self.attention.listening:
             self.blocks_ignored += 1
             return
-        stamp = _to_ns(msg.header.stamp) or int(self.get_clock().now().nanoseconds)
+        stamp = _to_ns(msg.header.stamp)
+        stamped = stamp != 0
+        if not stamped:  # the arrival time, used only if this block starts a stream
+            stamp = int(self.get_clock().now().nanoseconds)
+        gaps_before = self.detector.discontinuities
         try:
-            events = self.detector.process(pcm_of(msg), int(msg.sample_rate), int(msg.channels), stamp)
+            events = self.detector.process(
+                pcm_of(msg), int(msg.sample_rate), int(msg.channels), stamp, stamped=stamped
+            )
         except ValueError as error:
             self.blocks_rejected += 1
             self.get_logger().error(
                 f"bad audio chunk dropped ({self.blocks_rejected} so far): {error}", throttle_duration_sec=5.0
             )
             return
+        if self.detector.discontinuities != gaps_before and self.detector.last_discontinuity is not None:
+            gap = self.detector.last_discontinuity
+            self.get_logger().info(
+                f"audio {gap.reason} of {gap.offset_ns / 1e6:+.0f} ms: new stream "
+                f"({self.detector.discontinuities} so far)",
+                throttle_duration_sec=1.0,
+            )
         self._publish(events)
 
     def _on_wake_cmd(self, msg: Bool) -> None:
@@ -128,8 +149,10 @@ class SileroVadNode(Node):
 
     def _housekeeping(self) -> None:
         now = time.monotonic()
-        if self.detector.in_utterance and now - self._last_audio > self.config.audio_timeout_ms / 1000:
-            self.get_logger().warning("audio stopped mid-utterance: closing the utterance")
+        if self.detector.streaming and now - self._last_audio > self.config.audio_timeout_ms / 1000:
+            # Audio stopped (mic unplugged, echo gate shut): whatever comes next is a new stream.
+            if self.detector.in_utterance:
+                self.get_logger().warning("audio stopped mid-utterance: closing the utterance")
             self._publish(self.detector.stop())
         if now - self._last_report >= STATS_PERIOD_S:
             self._last_report = now
@@ -142,19 +165,25 @@ class SileroVadNode(Node):
             self.blocks_ignored,
             self.blocks_rejected,
             self.publish_failures,
+            self.detector.discontinuities,
         )
         if current != self._reported:
             self._reported = current
             self.get_logger().info(
                 f"frames={current[0]} utterances={current[1]} ignored_blocks={current[2]} "
-                f"rejected_blocks={current[3]} publish_failures={current[4]} "
+                f"rejected_blocks={current[3]} publish_failures={current[4]} stream_restarts={current[5]} "
                 f"resampled_blocks={self.detector.resampled_blocks}"
             )
 
-    def destroy_node(self) -> None:
-        # Shutting down mid-utterance still ends it properly for downstream consumers.
+    def before_shutdown(self) -> None:
+        """Called by run_node on SIGINT/SIGTERM while the context is alive: an open utterance gets
+        its end marker and voice_activity goes False, so consumers never wait for an end."""
         if self.detector.in_utterance:
+            self.get_logger().info("shutting down mid-utterance: closing it")
             self._publish(self.detector.stop())
+
+    def destroy_node(self) -> None:
+        self.before_shutdown()  # when destroyed without run_node (tests, benchmarks)
         super().destroy_node()
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from by_your_command.vad.attention import PhraseMatcher
+
 DEFAULT_WAKE_PHRASES = ["wake up", "wakeup", "awaken", "wake"]
 DEFAULT_SLEEP_PHRASES = ["go to sleep", "sleeptime", "sleep"]
 
@@ -36,14 +38,24 @@ class VadConfig:
         default=1000,
         metadata={"help": "close an open utterance when no audio arrives this long (mic stopped, gate shut)"},
     )
+    gap_tolerance_ms: int = field(
+        default=100,
+        metadata={
+            "help": "a block stamped this much later (or earlier) than the previous one's end starts a new "
+            "stream: the open utterance ends, pre-roll and model state are dropped"
+        },
+    )
     start_awake: bool = field(default=True, metadata={"help": "listen from startup (else wait for wake)"})
     wake_phrases: list[str] = field(
         default_factory=lambda: list(DEFAULT_WAKE_PHRASES),
-        metadata={"help": "prompt_text phrases (whole words) that wake the VAD"},
+        metadata={"help": "prompt_text commands that wake the VAD (the whole text must be one)"},
     )
     sleep_phrases: list[str] = field(
         default_factory=lambda: list(DEFAULT_SLEEP_PHRASES),
-        metadata={"help": "prompt_text phrases (whole words) that put the VAD to sleep"},
+        metadata={"help": "prompt_text commands that put the VAD to sleep (the whole text must be one)"},
+    )
+    robot_name: str = field(
+        default="", metadata={"help": "a name that may start or end a command ('Barney, wake up')"}
     )
     input_topic: str = field(
         default="audio_filtered", metadata={"help": "audio input (AudioChunk); 'audio' without echo control"}
@@ -66,8 +78,15 @@ class VadConfig:
             raise ValueError(f"utterance_chunk_frames must be >= 0, got {self.utterance_chunk_frames}")
         if self.audio_timeout_ms <= 0:
             raise ValueError(f"audio_timeout_ms must be > 0, got {self.audio_timeout_ms}")
+        if self.gap_tolerance_ms <= 0:
+            raise ValueError(f"gap_tolerance_ms must be > 0, got {self.gap_tolerance_ms}")
+        PhraseMatcher(self.wake_phrases, self.sleep_phrases, self.robot_name)  # raises on a bad phrase
         if self.sample_rate != 16000:
             raise ValueError(f"Silero runs at 16000 Hz here, got sample_rate={self.sample_rate}")
+
+    @property
+    def gap_tolerance_ns(self) -> int:
+        return self.gap_tolerance_ms * 1_000_000
 
     @property
     def effective_neg_threshold(self) -> float:

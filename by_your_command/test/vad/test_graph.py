@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import signal
 import subprocess
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
 from byc_testing import python_module, running_process, wait_for
+from rcl_interfaces.msg import Log
+from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 from ros_probe import Probe, probe_node
 from std_msgs.msg import Bool, String
 from vad.corpus import sessions
@@ -20,6 +22,10 @@ from by_your_command.audio.pcm import read_wav
 from by_your_command.nodes._audio_msgs import make_audio_chunk
 from by_your_command.nodes._qos import LATCHED, RELIABLE, STREAM
 
+# /rosout keeps a node's recent lines for late joiners: its lines from startup on, in order.
+ROSOUT = QoSProfile(
+    depth=1000, reliability=QoSReliabilityPolicy.RELIABLE, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL
+)
 PRE_ROLL_S = 15 * 512 / 16000
 HANGOVER_S = 13 * 512 / 16000  # 400 ms of silence rounded up to whole frames
 
@@ -42,8 +48,7 @@ def alive(*processes: subprocess.Popen[str]) -> Callable[[], None]:
 
 
 def interrupt(*processes: subprocess.Popen[str]) -> None:
-    """Stop nodes with SIGINT, which rclpy handles even while its executor waits in C; SIGTERM goes
-    to a Python handler (nodes/_runtime.py) that only runs when the wait ends (up to a timer period)."""
+    """Stop nodes with SIGINT (run_node stops them cleanly, publishing what they must first)."""
     for process in processes:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
@@ -102,6 +107,9 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
             ros_namespace,
             f"files:=[{session.path}]",
             "rate_factor:=3.0",
+            # 100 ms chunks: a publisher tick late under load bursts fewer chunks than the
+            # subscribers' queues hold (a lost block is a gap, and a gap drops the pre-roll)
+            "chunk_samples:=1600",
             "lead_silence_ms:=1000",
         )
         with running_process(publisher_cmd) as publisher:
@@ -153,60 +161,122 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
         assert np.abs(pcm).max() > 1000
 
 
-@pytest.mark.ros
-def test_sleep_wake_and_mute_are_latched_and_gate_the_audio(ros_namespace: str) -> None:
+class VadUnderTest:
+    """A silero_vad_node process, its topics, and its own ordered log (/rosout) of what it did."""
+
+    def __init__(self, probe: Probe, vad: subprocess.Popen[str], namespace: str) -> None:
+        self.probe = probe
+        self.check = alive(vad)
+        self.states = probe.listen(String, "attention_state", LATCHED)
+        self.chunks = probe.listen(AudioDataUtterance, "prompt_voice", RELIABLE)
+        logger = f"{namespace.strip('/')}.silero_vad_node"
+        self._log: list[str] = []
+        probe.node.create_subscription(
+            Log, "/rosout", lambda m: self._log.append(m.msg) if m.name == logger else None, ROSOUT
+        )
+        self.text = probe.node.create_publisher(String, "prompt_text", RELIABLE)
+        self.wake = probe.node.create_publisher(Bool, "wake_cmd", RELIABLE)
+        self.voice_active = probe.node.create_publisher(Bool, "voice_active", RELIABLE)
+        self.audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
+        self.wait(
+            lambda: (
+                self.states
+                and self.text.get_subscription_count()
+                and self.wake.get_subscription_count()
+                and self.voice_active.get_subscription_count()
+                and self.audio.get_subscription_count()
+            ),
+            "the VAD node to come up",
+        )
+        self._mark = 0
+
+    def wait(self, condition: Callable[[], object], what: str) -> None:
+        spin_until(self.probe, self.check, condition, timeout=15, what=what)
+
+    def mark(self) -> None:
+        """Start a new record of decisions (phrases heard, attention changes) from here."""
+        self._mark = len(self._log)
+
+    def decisions(self) -> list[str]:
+        """In the order the node made them: "wake"/"sleep" for phrases heard, "-> state" for changes."""
+        result = []
+        for line in self._log[self._mark :]:
+            if line.endswith("phrase heard in prompt_text"):
+                result.append(line.split("'")[1])
+            elif line.startswith("attention: "):
+                result.append("-> " + line.removeprefix("attention: "))
+        return result
+
+    def wait_for_decisions(self, count: int, what: str) -> list[str]:
+        self.wait(lambda: len(self.decisions()) >= count, what)
+        return self.decisions()
+
+
+@pytest.fixture
+def vad_node(ros_namespace: str) -> Iterator[VadUnderTest]:
     with (
         probe_node(ros_namespace) as probe,
         running_process(node("silero_vad_node", ros_namespace, "input_topic:=audio")) as vad,
     ):
-        check = alive(vad)
-        states = probe.listen(String, "attention_state", LATCHED)
-        chunks = probe.listen(AudioDataUtterance, "prompt_voice", RELIABLE)
-        text = probe.node.create_publisher(String, "prompt_text", RELIABLE)
-        wake = probe.node.create_publisher(Bool, "wake_cmd", RELIABLE)
-        voice_active = probe.node.create_publisher(Bool, "voice_active", RELIABLE)
-        audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
-        spin_until(
-            probe,
-            check,
-            lambda: (
-                states
-                and text.get_subscription_count()
-                and wake.get_subscription_count()
-                and voice_active.get_subscription_count()
-                and audio.get_subscription_count()
-            ),
-            timeout=30,
-            what="the VAD node to come up",
-        )
+        yield VadUnderTest(probe, vad, ros_namespace)
 
-        def expect(state: str) -> None:
-            spin_until(
-                probe, check, lambda: states[-1].data == state, timeout=10, what=f"attention_state {state}"
-            )
 
-        expect("awake")
-        text.publish(String(data="Please go to sleep now."))
-        expect("asleep")
-        text.publish(String(data="I am awake"))  # not a wake phrase: a substring only
-        wake.publish(Bool(data=True))
-        expect("awake")
-        assert [s.data for s in states][-3:] == ["awake", "asleep", "awake"]
-        voice_active.publish(Bool(data=False))
-        expect("muted")
-        text.publish(String(data="wake up"))  # mute wins over wake
-        voice_active.publish(Bool(data=True))
-        expect("awake")
-        assert "muted" in [s.data for s in states] and chunks == []
+@pytest.mark.ros
+def test_only_whole_commands_on_prompt_text_change_attention(vad_node: VadUnderTest) -> None:
+    """Each sentence below holds a wake or sleep word; with matching anywhere in the text the
+    node flipped state on them. The node's own ordered record shows every decision it made."""
+    vad = vad_node
+    assert vad.wait_for_decisions(1, "the initial state") == ["-> awake"]
+    vad.mark()
+    for text in [
+        "I can't sleep",
+        "wake up",  # a real command, but already awake: heard, no change
+        "How did you sleep?",
+        "Don't go to sleep!",
+        "I am awake",
+        "Please go to sleep now.",
+        "don't wake the baby",
+        "It's time to go to sleep",
+        "Wake up!",
+    ]:
+        vad.text.publish(String(data=text))
+    expected = ["wake", "sleep", "-> asleep", "wake", "-> awake"]
+    assert vad.wait_for_decisions(len(expected), "the commands to be handled") == expected
+    vad.wait(lambda: vad.states[-1].data == "awake", "attention_state awake")
+    assert [s.data for s in vad.states][-1] == "awake" and vad.chunks == []
 
-        # Speech that stops arriving mid-utterance (mic unplugged, echo gate shut) still gets its end.
-        # (from 0.5 s: half a second of silence first, in case the node matches us a little late)
-        speech = next(s for s in sessions() if s.name == "clean_en_us").audio()[8000 : 16000 * 2]
-        for offset in range(0, len(speech), 512):
-            audio.publish(make_audio_chunk(speech[offset : offset + 512], 16000, 1))
-            probe.spin(0.002)
-        spin_until(
-            probe, check, lambda: any(c.is_utterance_end for c in chunks), timeout=10, what="end chunk"
-        )
-        assert [c.chunk_sequence for c in chunks] == list(range(len(chunks)))
-        assert [c.is_utterance_end for c in chunks].count(True) == 1 and chunks[-1].is_utterance_end
+
+@pytest.mark.ros
+def test_wake_while_muted_is_remembered_not_obeyed(vad_node: VadUnderTest) -> None:
+    """Mute wins over wake: phrases while muted change nothing visible, and unmuting returns to
+    the state they asked for (starting asleep, so a forgotten wake would show)."""
+    vad = vad_node
+    assert vad.wait_for_decisions(1, "the initial state") == ["-> awake"]
+    vad.mark()
+    vad.wake.publish(Bool(data=False))
+    assert vad.wait_for_decisions(1, "wake_cmd False") == ["-> asleep"]
+    vad.mark()
+    vad.voice_active.publish(Bool(data=False))
+    assert vad.wait_for_decisions(1, "voice_active False") == ["-> muted"]
+    vad.mark()
+    for text in ["wake up", "go to sleep", "wake up"]:
+        vad.text.publish(String(data=text))
+    vad.wait_for_decisions(3, "the three phrases to be heard while muted")
+    vad.voice_active.publish(Bool(data=True))
+    assert vad.wait_for_decisions(4, "unmuting") == ["wake", "sleep", "wake", "-> awake"]
+    vad.wait(lambda: vad.states[-1].data == "awake", "attention_state awake")
+
+
+@pytest.mark.ros
+def test_audio_that_stops_mid_utterance_still_gets_its_end(vad_node: VadUnderTest) -> None:
+    """Mic unplugged, echo gate shut: audio_timeout_ms closes the utterance."""
+    vad = vad_node
+    # (from 0.5 s: half a second of silence first, in case the node matches us a little late)
+    speech = next(s for s in sessions() if s.name == "clean_en_us").audio()[8000 : 16000 * 2]
+    for offset in range(0, len(speech), 512):
+        vad.audio.publish(make_audio_chunk(speech[offset : offset + 512], 16000, 1))
+        vad.probe.spin(0.002)
+    vad.wait(lambda: any(c.is_utterance_end for c in vad.chunks), "end chunk")
+    chunks = vad.chunks
+    assert [c.chunk_sequence for c in chunks] == list(range(len(chunks)))
+    assert [c.is_utterance_end for c in chunks].count(True) == 1 and chunks[-1].is_utterance_end

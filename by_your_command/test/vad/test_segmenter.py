@@ -142,6 +142,7 @@ def test_max_buffer_frames_bounds_whole_utterance_mode() -> None:
         {"max_buffer_frames": 0},
         {"utterance_chunk_frames": -2},
         {"sample_rate": 8000},
+        {"gap_tolerance_ms": 0},
     ],
 )
 def test_bad_configuration_is_refused_with_a_message(kwargs: dict[str, float]) -> None:
