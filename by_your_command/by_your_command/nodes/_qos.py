@@ -8,6 +8,12 @@ from rclpy.qos import QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile, QoSReli
 STREAM = QoSProfile(
     history=QoSHistoryPolicy.KEEP_LAST, depth=10, reliability=QoSReliabilityPolicy.BEST_EFFORT
 )
+# Subscribers of streaming audio: best effort too, but a deeper queue than STREAM's. Downstream a
+# lost block is a gap (the VAD and echo control restart their timelines there), so a scheduling
+# stall of up to ~2 s of 32 ms blocks is absorbed instead of lost.
+AUDIO_IN = QoSProfile(
+    history=QoSHistoryPolicy.KEEP_LAST, depth=64, reliability=QoSReliabilityPolicy.BEST_EFFORT
+)
 # Utterance chunks, commands, signals: every message matters.
 RELIABLE = QoSProfile(
     history=QoSHistoryPolicy.KEEP_LAST, depth=100, reliability=QoSReliabilityPolicy.RELIABLE

@@ -1,4 +1,4 @@
-"""clap_detector_node: audio -> wake_cmd (True) on a double clap. Logic lives in audio/clap.py."""
+"""clap_detector_node: audio -> wake_cmd (True) on a double clap. Logic lives in audio/clap*.py."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool
 
 from by_your_command.audio.clap import ClapConfig, ClapDetector, DoubleClap
-from by_your_command.audio.pcm import resample, to_mono
+from by_your_command.audio.pcm import StreamResampler, to_mono
 from by_your_command.nodes._audio_msgs import pcm_of
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import RELIABLE, STREAM
@@ -32,7 +32,9 @@ class ClapDetectorNode(Node):
         self.create_subscription(AudioChunk, "audio", self._on_audio, STREAM)
         self.add_on_set_parameters_callback(self._on_parameters)
         self.blocks_rejected = 0
-        self._reported = (0, 0, 0)
+        self.detector_errors = 0
+        self._resampler: StreamResampler | None = None  # for input not at config.sample_rate
+        self._reported: tuple[object, ...] = ()
         self._last_report = time.monotonic()
         self.create_timer(HOUSEKEEPING_PERIOD_S, self._housekeeping)
         self.get_logger().info(f"clap detector ready (enabled={self.enabled})")
@@ -44,7 +46,12 @@ class ClapDetectorNode(Node):
         if fixed:
             return SetParametersResult(successful=False, reason=f"restart the node to change {fixed}")
         for parameter in parameters:
-            self.enabled = bool(parameter.value)
+            enabled = bool(parameter.value)
+            if enabled and not self.enabled:
+                # The audio skipped while disabled is a gap: never pair a clap across it.
+                self.detector.reset()
+                self._resampler = None
+            self.enabled = enabled
             self.get_logger().info(f"clap detection enabled={self.enabled}")
         return SetParametersResult(successful=True)
 
@@ -53,11 +60,23 @@ class ClapDetectorNode(Node):
         if now - self._last_report < STATS_PERIOD_S:
             return
         self._last_report = now
-        current = (self.detector.claps, self.detector.double_claps, self.blocks_rejected)
+        d = self.detector
+        current = (
+            d.onsets,
+            d.claps,
+            d.double_claps,
+            d.echoes,
+            d.rhythms,
+            tuple(sorted(d.rejected.items())),
+            self.blocks_rejected,
+            self.detector_errors,
+        )
         if current != self._reported:
             self._reported = current
             self.get_logger().info(
-                f"claps={current[0]} double_claps={current[1]} rejected_blocks={current[2]}"
+                f"onsets={d.onsets} claps={d.claps} double_claps={d.double_claps} echoes={d.echoes} "
+                f"rhythms={d.rhythms} not_claps={dict(d.rejected)} bad_blocks={self.blocks_rejected} "
+                f"detector_errors={self.detector_errors}"
             )
 
     def _on_audio(self, msg: AudioChunk) -> None:
@@ -65,18 +84,29 @@ class ClapDetectorNode(Node):
             return
         try:
             pcm = to_mono(pcm_of(msg), int(msg.channels))
-            if msg.sample_rate != self.config.sample_rate:
-                pcm = resample(pcm, int(msg.sample_rate), self.config.sample_rate)
+            rate = int(msg.sample_rate)
+            if rate != self.config.sample_rate:
+                if self._resampler is None or self._resampler.from_rate != rate:
+                    # A new rate is a new stream; the resampler checks the rate is plausible.
+                    self._resampler = StreamResampler(rate, self.config.sample_rate)
+                    self.get_logger().warning(f"audio at {rate} Hz: resampling to {self.config.sample_rate} Hz")
+                pcm = self._resampler.push(pcm)
         except ValueError as error:
             self.blocks_rejected += 1
             self.get_logger().error(
                 f"bad audio chunk dropped ({self.blocks_rejected} so far): {error}", throttle_duration_sec=5.0
             )
             return
-        for event in self.detector.process(pcm):
+        try:
+            events = self.detector.process(pcm)
+        except Exception as error:  # a detector bug must not kill the node unseen: log, count, restart
+            self.detector_errors += 1
+            self.get_logger().error(f"clap detector failed ({self.detector_errors} so far), restarting it: {error!r}")
+            self.detector.reset()
+            return
+        for event in events:
             if isinstance(event, DoubleClap):
-                gap_ms = (event.second.time_s - event.first.time_s) * 1000
-                self.get_logger().info(f"double clap ({gap_ms:.0f} ms apart): wake")
+                self.get_logger().info(f"double clap ({event.gap_ms:.0f} ms apart): wake")
                 try:
                     self.wake_pub.publish(Bool(data=True))
                 except Exception as error:  # rclpy raises RCLError under overload

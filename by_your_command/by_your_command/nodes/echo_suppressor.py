@@ -14,7 +14,7 @@ from by_your_command.audio.echo import Block, EchoConfig, EchoController, EchoMo
 from by_your_command.audio.pcm import check_sample_rate, to_mono
 from by_your_command.nodes._audio_msgs import make_audio_chunk, pcm_of
 from by_your_command.nodes._params import declare_config
-from by_your_command.nodes._qos import LATCHED, STREAM
+from by_your_command.nodes._qos import AUDIO_IN, LATCHED, STREAM
 
 NS_PER_S = 1_000_000_000
 STATS_PERIOD_S = 10.0
@@ -35,10 +35,10 @@ class EchoSuppressorNode(Node):
         self.sample_rate = self.config.sample_rate
         self.echo = EchoController(self.config)
         self.publisher = self.create_publisher(AudioChunk, "audio_filtered", STREAM)
-        self.create_subscription(AudioChunk, "audio", self._on_audio, STREAM)
+        self.create_subscription(AudioChunk, "audio", self._on_audio, AUDIO_IN)
         self.create_subscription(Bool, "assistant_speaking", self._on_speaking, LATCHED)
         if self.echo.mode is EchoMode.AEC:
-            self.create_subscription(AudioChunk, "audio_played", self._on_played, STREAM)
+            self.create_subscription(AudioChunk, "audio_played", self._on_played, AUDIO_IN)
         self._reported: tuple[int, ...] = ()
         self.create_timer(STATS_PERIOD_S, self._report)
         aec = (

@@ -63,7 +63,9 @@ class FileAudioPublisher(Node):
             self.get_logger().info("subscriber found: playing")
         elapsed = now - self._start_monotonic
         for chunk in self.schedule.due(elapsed):
-            stamp_ns = self._start_ns + int(chunk.offset_s / self.config.rate_factor * NS_PER_S)
+            # Stamps follow the audio's own timeline (as if captured live), also when played faster:
+            # consumers check that blocks are contiguous and would take compressed stamps for gaps.
+            stamp_ns = self._start_ns + int(chunk.offset_s * NS_PER_S)
             msg = make_audio_chunk(
                 chunk.samples,
                 self.config.sample_rate,

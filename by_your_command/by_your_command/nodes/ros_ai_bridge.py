@@ -334,7 +334,7 @@ class RosAiBridge(Node):
         return array
 
     def destroy_node(self) -> None:
-        # rclpy is already shut down here (its logger cannot publish): stop routing to it.
+        # The node is going away (its logger will not publish any more): stop routing to it.
         logging.getLogger("by_your_command.bridge").removeHandler(self._log_handler)
         if self._loop.is_running():
             try:

@@ -13,12 +13,11 @@ import time
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
 from rclpy.node import Node
-from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from std_msgs.msg import Bool, String
 
 from by_your_command.nodes._audio_msgs import int16_field, pcm_of
 from by_your_command.nodes._params import declare_config
-from by_your_command.nodes._qos import LATCHED, RELIABLE
+from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
 from by_your_command.vad.attention import Attention, PhraseCommand, PhraseMatcher
 from by_your_command.vad.config import VadConfig
 from by_your_command.vad.detector import VoiceDetector
@@ -26,11 +25,6 @@ from by_your_command.vad.model import SileroModel
 from by_your_command.vad.segmenter import Event, UtteranceChunk, VoiceActivity
 
 NS_PER_S = 1_000_000_000
-# Best effort like every audio stream, but a deeper queue than STREAM's: a lost block now ends the
-# stream (gap), so a scheduling stall of up to ~2 s of 32 ms blocks is absorbed instead.
-AUDIO_IN = QoSProfile(
-    history=QoSHistoryPolicy.KEEP_LAST, depth=64, reliability=QoSReliabilityPolicy.BEST_EFFORT
-)
 STATS_PERIOD_S = 10.0
 HOUSEKEEPING_PERIOD_S = 0.2  # audio timeout checks
 

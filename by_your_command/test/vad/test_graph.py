@@ -88,6 +88,7 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
         activity = probe.listen(Bool, "voice_activity", RELIABLE)
         states = probe.listen(String, "attention_state", LATCHED)
         done = probe.listen(Bool, "file_audio_done", LATCHED)
+        played = probe.listen(AudioChunk, "audio", STREAM)
         graph = probe.node
 
         def wired() -> bool:
@@ -137,6 +138,11 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
 
     files = sorted(out_dir.glob("utterance_*.wav"))
     assert len(files) == expected, [f.name for f in files]
+    # Played 3x faster, the file's stamps still follow its own timeline: consecutive chunks are
+    # whole chunk durations apart (best effort may lose some), never compressed into fake gaps.
+    stamps_ms = [m.header.stamp.sec * 1000 + m.header.stamp.nanosec / 1e6 for m in played]
+    steps = [later - earlier for earlier, later in zip(stamps_ms, stamps_ms[1:])]
+    assert len(steps) > 10 and all(abs(step / 100 - round(step / 100)) < 0.01 and step > 0 for step in steps)
     assert [m.data for m in activity] == [True, False] * expected
     by_id: dict[int, list[AudioDataUtterance]] = {}
     for chunk in chunks:
