@@ -27,7 +27,8 @@ def default_model_path() -> Path:
     spec = importlib.util.find_spec("silero_vad")
     if spec is None or not spec.submodule_search_locations:
         raise ModelNotFoundError(
-            "the silero-vad package is not installed; install it with `pip install --no-deps silero-vad`"
+            "the silero-vad package is not installed; install it with "
+            "`pip install --no-deps 'silero-vad>=6.2'` (its own dependencies would pull in torch)"
         )
     path = Path(next(iter(spec.submodule_search_locations))) / "data" / MODEL_FILE
     if not path.is_file():
