@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
 
-from by_your_command.agents.events import ProviderEvent
+from by_your_command.agents.events import ProviderError, ProviderEvent
 
 
 class Role(str, Enum):
@@ -46,6 +46,16 @@ class SessionSetup:
 
 class ProviderClosed(ConnectionError):
     """The session is closed (by us, by the server, or by a network failure)."""
+
+
+class ProviderFailure(Exception):
+    """`connect` (or any call) was refused with a typed error: `error.fatal` (bad key, unknown model)
+    stops the agent; `error.retry_after_s` (rate limit) delays the next attempt. Other exceptions
+    (OSError, TimeoutError, ProviderClosed) are retried with backoff."""
+
+    def __init__(self, error: ProviderError) -> None:
+        super().__init__(f"{error.code}: {error.message}")
+        self.error = error
 
 
 class Provider(Protocol):

@@ -1,0 +1,236 @@
+"""The RobotPort over the rosbridge client: rosbridge JSON in and out (docs/topics.md, protocol.md).
+
+Every message from the bridge is untrusted: one that does not convert comes out as `InputLost`
+(reason "invalid message: …"), so the runtime counts it. `Lost` deliveries become `InputLost` too.
+A publish while the bridge is down raises PortUnavailable; a stopped client ends `inputs()` with
+PortClosed. Empty topic names in the config switch an input or output off.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+from collections.abc import AsyncIterator, Callable
+from typing import Any, Protocol
+
+import numpy as np
+
+from by_your_command.agents.config import AgentConfig, ContextSource
+from by_your_command.agents.inputs import (
+    Attention,
+    AttentionChanged,
+    CameraFrame,
+    CommandStatus,
+    ConversationReset,
+    InputLost,
+    PlaybackStatus,
+    PromptText,
+    RobotInput,
+    SharedTurn,
+    UtteranceChunk,
+    VoiceActivity,
+)
+from by_your_command.agents.metrics import MetricsRecord
+from by_your_command.agents.port import PortClosed, PortUnavailable, VoiceChunk
+from by_your_command.agents.provider import Role
+from by_your_command.bridge.client_messages import BridgeUnavailable, ClientStopped, Delivery, Lost
+
+AUDIO_CHUNK = "by_your_command_msgs/msg/AudioChunk"
+UTTERANCE = "by_your_command_msgs/msg/AudioDataUtterance"
+INTERRUPTION = "by_your_command_msgs/msg/Interruption"
+PLAYBACK = "by_your_command_msgs/msg/PlaybackStatus"
+VERDICT = "by_your_command_msgs/msg/CommandVerdict"
+STRING = "std_msgs/msg/String"
+BOOL = "std_msgs/msg/Bool"
+IMAGE = "sensor_msgs/msg/CompressedImage"
+
+
+class BridgeLike(Protocol):
+    """The parts of bridge.client.BridgeClient this port uses."""
+
+    async def subscribe(self, topic: str, msg_type: str | None = None) -> None: ...
+
+    async def advertise(self, topic: str, msg_type: str) -> None: ...
+
+    async def publish(self, topic: str, msg: dict[str, Any]) -> None: ...
+
+    async def receive(self, timeout: float | None = None) -> Delivery: ...
+
+
+class BadMessage(ValueError):
+    pass
+
+
+def _field(msg: dict[str, Any], name: str, kind: type, default: Any = None) -> Any:
+    value = msg.get(name, default)
+    if kind is int and isinstance(value, bool) or not isinstance(value, kind):
+        raise BadMessage(f"{name}: expected {kind.__name__}")
+    return value
+
+
+def _pcm(values: Any) -> bytes:
+    if not isinstance(values, list):
+        raise BadMessage("int16_data: expected a list")
+    try:
+        samples = np.asarray(values, dtype=np.int64)
+    except (TypeError, ValueError):
+        raise BadMessage("int16_data: expected integers") from None
+    if samples.ndim != 1 or (samples.size and (samples.min() < -32768 or samples.max() > 32767)):
+        raise BadMessage("int16_data: values outside int16")
+    return samples.astype("<i2").tobytes()
+
+
+def _utterance(msg: dict[str, Any]) -> RobotInput:
+    if _field(msg, "channels", int, 1) not in (0, 1):
+        raise BadMessage("channels: the pipeline is mono")
+    return UtteranceChunk(
+        _pcm(msg.get("int16_data", [])),
+        _field(msg, "sample_rate", int, 16000),
+        _field(msg, "utterance_id", int, 0),
+        _field(msg, "chunk_sequence", int, 0),
+        _field(msg, "is_utterance_end", bool, False),
+    )
+
+
+def _playback(msg: dict[str, Any]) -> RobotInput:
+    return PlaybackStatus(
+        _field(msg, "stream_id", str, ""),
+        _field(msg, "played_ms", int, 0),
+        _field(msg, "queued_ms", int, 0),
+        _field(msg, "speaking", bool, False),
+        _field(msg, "finished", bool, False),
+        _field(msg, "interrupted", bool, False),
+        _field(msg, "starved", bool, False),
+    )
+
+
+def _attention(msg: dict[str, Any]) -> RobotInput:
+    state = _field(msg, "data", str)
+    try:
+        return AttentionChanged(Attention(state.strip().lower()))
+    except ValueError:
+        raise BadMessage(f"data: unknown attention state {state[:40]!r}") from None
+
+
+def _image(msg: dict[str, Any]) -> RobotInput:
+    if "jpeg" not in _field(msg, "format", str, "").lower():
+        raise BadMessage("format: only jpeg frames are forwarded to providers")
+    try:
+        return CameraFrame(base64.b64decode(_field(msg, "data", str), validate=True))
+    except binascii.Error:
+        raise BadMessage("data: invalid base64") from None
+
+
+def _verdict(msg: dict[str, Any]) -> RobotInput:
+    return CommandStatus(
+        _field(msg, "raw", str, ""),
+        _field(msg, "command", str, ""),
+        _field(msg, "accepted", bool, False),
+        _field(msg, "reason", str, ""),
+        _field(msg, "topic", str, ""),
+    )
+
+
+def _stamp(wall: float) -> dict[str, Any]:
+    sec = int(wall)
+    return {"stamp": {"sec": sec, "nanosec": int((wall - sec) * 1e9)}, "frame_id": ""}
+
+
+class BridgePort:
+    def __init__(self, client: BridgeLike, config: AgentConfig) -> None:
+        self._client = client
+        topics = config.topics
+        self._topics = topics
+        self._inputs: dict[str, tuple[str, Callable[[dict[str, Any]], RobotInput]]] = {}
+        self._add(topics.prompt_voice, UTTERANCE, _utterance)
+        self._add(topics.prompt_text, STRING, lambda msg: PromptText(_field(msg, "data", str)))
+        self._add(topics.voice_activity, BOOL, lambda msg: VoiceActivity(_field(msg, "data", bool)))
+        self._add(topics.playback_status, PLAYBACK, _playback)
+        self._add(topics.attention_state, STRING, _attention)
+        self._add(topics.camera, IMAGE, _image)
+        self._add(topics.command_status, VERDICT, _verdict)
+        self._add(topics.conversation_reset, STRING, lambda msg: ConversationReset(_field(msg, "data", str)))
+        if config.context_source is ContextSource.SHARED:  # the conversation agent's turns
+            self._add(
+                topics.prompt_transcript, STRING, lambda msg: SharedTurn(Role.USER, _field(msg, "data", str))
+            )
+            self._add(
+                topics.response_text, STRING, lambda msg: SharedTurn(Role.ASSISTANT, _field(msg, "data", str))
+            )
+        self._outputs = {
+            topics.response_voice: AUDIO_CHUNK,
+            topics.interruption_signal: INTERRUPTION,
+            topics.response_cmd: STRING,
+            topics.metrics: STRING,
+        }
+        if config.context_source is ContextSource.OWN:  # only the authority publishes the transcript
+            self._outputs[topics.response_text] = STRING
+            self._outputs[topics.prompt_transcript] = STRING
+        self._outputs.pop("", None)
+
+    def _add(self, topic: str, msg_type: str, convert: Callable[[dict[str, Any]], RobotInput]) -> None:
+        if topic:
+            self._inputs[topic] = (msg_type, convert)
+
+    async def setup(self) -> None:
+        """Subscribe and advertise (the client replays both after every reconnect)."""
+        for topic, (msg_type, _) in self._inputs.items():
+            await self._client.subscribe(topic, msg_type)
+        for topic, msg_type in self._outputs.items():
+            await self._client.advertise(topic, msg_type)
+
+    async def inputs(self) -> AsyncIterator[RobotInput]:
+        while True:
+            try:
+                delivery = await self._client.receive()
+            except ClientStopped as stopped:
+                raise PortClosed(f"the bridge client stopped: {stopped}") from stopped
+            yield self.convert(delivery)
+
+    def convert(self, delivery: Delivery) -> RobotInput:
+        if isinstance(delivery, Lost):
+            return InputLost(delivery.topic, delivery.count, delivery.reason)
+        known = self._inputs.get(delivery.topic)
+        if known is None:
+            return InputLost(delivery.topic, 1, "invalid message: not a topic this agent reads")
+        try:
+            return known[1](delivery.msg)
+        except BadMessage as error:
+            return InputLost(delivery.topic, 1, f"invalid message: {error}")
+
+    async def _publish(self, topic: str, msg: dict[str, Any]) -> None:
+        if topic not in self._outputs:
+            return  # switched off in the config (or not this agent's to publish)
+        try:
+            await self._client.publish(topic, msg)
+        except BridgeUnavailable as error:
+            raise PortUnavailable(str(error)) from error
+
+    async def publish_voice(self, chunk: VoiceChunk) -> None:
+        data = np.frombuffer(chunk.pcm, dtype="<i2").tolist()
+        msg = {
+            "header": _stamp(chunk.stamp),
+            "sample_rate": chunk.sample_rate,
+            "channels": 1,
+            "stream_id": chunk.stream_id,
+            "end_of_stream": chunk.end_of_stream,
+            "data": data,
+        }
+        await self._publish(self._topics.response_voice, msg)
+
+    async def publish_text(self, text: str) -> None:
+        await self._publish(self._topics.response_text, {"data": text})
+
+    async def publish_cmd(self, text: str) -> None:
+        await self._publish(self._topics.response_cmd, {"data": text})
+
+    async def publish_interruption(self, stream_id: str, reason: str, stamp: float) -> None:
+        msg = {"header": _stamp(stamp), "stream_id": stream_id, "reason": reason}
+        await self._publish(self._topics.interruption_signal, msg)
+
+    async def publish_transcript(self, text: str) -> None:
+        await self._publish(self._topics.prompt_transcript, {"data": text})
+
+    async def publish_metrics(self, record: MetricsRecord) -> None:
+        await self._publish(self._topics.metrics, {"data": json.dumps(record.as_dict())})

@@ -1,0 +1,112 @@
+"""What the robot tells an agent, typed. The port that produces these has already validated them;
+the runtime still treats every value as untrusted (rates, ids and lengths are checked again)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+from by_your_command.agents.provider import Role
+
+
+class Attention(str, Enum):
+    AWAKE = "awake"
+    ASLEEP = "asleep"
+    MUTED = "muted"
+
+
+@dataclass(frozen=True)
+class UtteranceChunk:
+    """A piece of one utterance cut by our VAD (`prompt_voice`); exactly one chunk has `is_end`."""
+
+    pcm: bytes  # mono int16 LE
+    sample_rate: int
+    utterance_id: int
+    chunk_sequence: int
+    is_end: bool
+
+
+@dataclass(frozen=True)
+class PromptText:
+    """A typed user turn (`prompt_text`)."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class VoiceActivity:
+    """Our VAD's speech flag (`voice_activity`): True is a speech onset."""
+
+    active: bool
+
+
+@dataclass(frozen=True)
+class PlaybackStatus:
+    """What the player really played of one reply (`playback_status`)."""
+
+    stream_id: str
+    played_ms: int
+    queued_ms: int = 0
+    speaking: bool = False
+    finished: bool = False
+    interrupted: bool = False
+    starved: bool = False
+
+
+@dataclass(frozen=True)
+class AttentionChanged:
+    state: Attention
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    jpeg: bytes
+
+
+@dataclass(frozen=True)
+class CommandStatus:
+    """The command processor's verdict on one command (`command_status`)."""
+
+    raw: str
+    command: str
+    accepted: bool
+    reason: str
+    topic: str = ""
+
+
+@dataclass(frozen=True)
+class InputLost:
+    """Messages of `topic` that will never arrive (`count` None: unknown how many)."""
+
+    topic: str
+    count: int | None
+    reason: str
+
+
+@dataclass(frozen=True)
+class ConversationReset:
+    """Start a new conversation (external reset); empty id: the agent makes one."""
+
+    conversation_id: str = ""
+
+
+@dataclass(frozen=True)
+class SharedTurn:
+    """A turn of the shared transcript published by the conversation agent (dual mode)."""
+
+    role: Role
+    text: str
+
+
+RobotInput = (
+    UtteranceChunk
+    | PromptText
+    | VoiceActivity
+    | PlaybackStatus
+    | AttentionChanged
+    | CameraFrame
+    | CommandStatus
+    | InputLost
+    | ConversationReset
+    | SharedTurn
+)

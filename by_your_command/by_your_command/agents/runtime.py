@@ -1,0 +1,1048 @@
+"""The agent runtime: one scheduler task reacting to robot inputs, provider events and deadlines.
+
+All state lives in this task and changes only here, one item at a time, so there are no races; the
+I/O is at the edges (the RobotPort pump, the Session's writer/reader tasks). Every wait has a
+deadline computed from the state (`_deadlines`), and every deadline handler changes the state.
+docs/agents.md describes the behaviour; the comments here say why where it is not obvious.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections import deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+
+from by_your_command.agents.barge_in import PendingBargeIn, Verdict, judge
+from by_your_command.agents.clock import Clock, LoopClock
+from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
+from by_your_command.agents.context import ContextStore
+from by_your_command.agents.events import (
+    AssistantAudio,
+    AssistantText,
+    AssistantTranscript,
+    Interrupted,
+    ProviderError,
+    ProviderEvent,
+    ResponseDone,
+    ResponseStatus,
+    SessionEnding,
+    ToolCall,
+    Usage,
+    UserTranscript,
+)
+from by_your_command.agents.inputs import (
+    Attention,
+    AttentionChanged,
+    CameraFrame,
+    CommandStatus,
+    ConversationReset,
+    InputLost,
+    PlaybackStatus,
+    PromptText,
+    RobotInput,
+    SharedTurn,
+    UtteranceChunk,
+    VoiceActivity,
+)
+from by_your_command.agents.metrics import Counters, SessionMetrics, TurnMetrics
+from by_your_command.agents.port import PortClosed, RobotPort, VoiceChunk
+from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup
+from by_your_command.agents.reply_audio import ReplyAudio, pieces
+from by_your_command.agents.robot_tool import (
+    ROBOT_COMMAND_TOOL,
+    TOOL_NAME,
+    BadToolCall,
+    PendingVerdicts,
+    parse_command,
+    result_json,
+)
+from by_your_command.agents.session import (
+    EndOfTurn,
+    Interrupt,
+    SendAudio,
+    SendImage,
+    SendText,
+    SendToolResult,
+    Session,
+    SessionEvent,
+    SessionFailed,
+    SessionMessage,
+    SessionOpened,
+    SessionTimeouts,
+    backoff_s,
+)
+from by_your_command.agents.turn import Turn
+from by_your_command.audio.pcm import StreamResampler
+
+log = logging.getLogger(__name__)
+
+MIN_RATE, MAX_RATE = 8000, 192000  # what the player accepts; anything else is refused here
+MAX_TEXT_CHARS = 4000  # a typed turn longer than this is cut (and counted)
+MAX_FRAME_BYTES = 4 * 1024 * 1024
+INPUT_BACKLOG = 256  # robot inputs queued before the pump stops reading (back-pressure to the bridge)
+RECENT_UTTERANCES = 32  # closed utterance ids remembered, to tell late chunks from new utterances
+
+
+class AgentFatal(RuntimeError):
+    """The agent cannot go on (bad key, unknown model, robot port refused): one clear message."""
+
+
+class _Stop:
+    pass
+
+
+_STOP = _Stop()
+_Item = RobotInput | SessionMessage | _Stop
+
+
+@dataclass(frozen=True)
+class _Deadline:
+    when: float
+    name: str
+    handler: Callable[[], Awaitable[None]]
+
+
+class AgentRuntime:
+    def __init__(
+        self,
+        config: AgentConfig,
+        instructions: str,
+        port: RobotPort,
+        provider_factory: ProviderFactory,
+        clock: Clock | None = None,
+    ) -> None:
+        self.config = config
+        self._instructions = instructions
+        self._port = port
+        self._factory = provider_factory
+        self._clock: Clock = clock or LoopClock()
+        self.counters = Counters()
+        self.context = ContextStore(
+            config.max_context_tokens, config.max_context_age_s, config.conversation_timeout_s
+        )
+        self._queue: asyncio.Queue[_Item] = asyncio.Queue()
+        self._input_room = asyncio.Semaphore(INPUT_BACKLOG)
+        self._session: Session | None = None
+        self._serial = 0
+        self._not_before = 0.0  # no connect before this (rate limit)
+        self._reconnect_at: float | None = None
+        self._attempts = 0  # failed sessions since the last reply started
+        self._attention = Attention.AWAKE
+        self._turns = 0
+        self._turn_in: Turn | None = None  # the utterance being received
+        self._turn_out: Turn | None = None  # the committed turn whose reply is due or streaming
+        self._waiting: deque[Turn] = deque()  # ended turns committed after the current reply
+        self._closed_utterances: deque[int] = deque(maxlen=RECENT_UTTERANCES)
+        self._reply: ReplyAudio | None = None  # the latest spoken reply (may still be playing)
+        self._cut: set[str] = set()  # responses cut by a confirmed barge-in
+        self._barge: PendingBargeIn | None = None
+        self._barge_turn: Turn | None = None
+        self._tools = PendingVerdicts()
+        self._frame: tuple[bytes, float] | None = None
+        self._frame_sent = True
+        self._streams = 0
+        self._last_activity = 0.0  # last exchange with the provider or the player (pause timer)
+        self._awaited_at = 0.0  # last sign of life of the reply due (reply deadline)
+        self._committed_at = 0.0  # when the latest turn was committed (orders late user transcripts)
+        self._port_error = ""
+        self._session_ending = ""  # the provider announced its end: rotate at the next boundary
+        self._recycle = ""  # close the session at the next boundary, for this reason
+        self._spins = 0
+
+    # --- public ------------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Until the port's inputs end or stop() is called; raises AgentFatal with one message."""
+        now = self._clock.now()
+        self._last_activity = now
+        self.context.new_conversation(now, self._clock.wall())
+        pump = asyncio.create_task(self._pump_inputs(), name=f"{self.config.agent_id} inputs")
+        log.info(
+            "agent %s (%s) running, conversation %s",
+            self.config.agent_id,
+            self.config.role.value,
+            self.context.conversation_id,
+        )
+        try:
+            while True:
+                item = await self._next_item()
+                if isinstance(item, _Stop):
+                    break
+                try:
+                    if item is not None:
+                        await self._handle(item)
+                    await self._run_due()
+                except AgentFatal:
+                    raise
+                except Exception:
+                    self.counters.internal_errors += 1
+                    log.exception(
+                        "agent %s: error handling %s (went on)", self.config.agent_id, type(item).__name__
+                    )
+                finally:
+                    if item is not None and not isinstance(
+                        item, (SessionOpened, SessionEvent, SessionFailed)
+                    ):
+                        self._input_room.release()
+            if self._port_error:
+                raise AgentFatal(self._port_error)
+        except AgentFatal as fatal:
+            log.error("agent %s stopped: %s", self.config.agent_id, fatal)
+            raise
+        finally:
+            pump.cancel()
+            await asyncio.gather(pump, return_exceptions=True)
+            if self._session is not None:
+                await self._close_session("agent stopped")
+            log.info("agent %s stopped; counters %s", self.config.agent_id, self.counters.snapshot())
+
+    def stop(self) -> None:
+        self._queue.put_nowait(_STOP)
+
+    # --- the loop ----------------------------------------------------------------------------
+
+    async def _pump_inputs(self) -> None:
+        """Robot inputs into the scheduler's queue; a failing port is logged, counted and re-read."""
+        failures = 0
+        while True:
+            try:
+                async for item in self._port.inputs():
+                    await self._input_room.acquire()
+                    self._queue.put_nowait(item)
+                    failures = 0
+                break
+            except asyncio.CancelledError:
+                raise
+            except PortClosed as closed:
+                self._port_error = str(closed) or "the robot port closed"
+                break
+            except Exception:
+                failures += 1
+                self.counters.internal_errors += 1
+                log.exception(
+                    "agent %s: robot inputs failed (%d in a row); retrying", self.config.agent_id, failures
+                )
+                await self._clock.sleep(backoff_s(failures, 0.1, 5.0))
+        self._queue.put_nowait(_STOP)
+
+    async def _next_item(self) -> _Item | None:
+        deadline = min((d.when for d in self._deadlines()), default=None)
+        timeout = None if deadline is None else max(0.0, deadline - self._clock.now())
+        if timeout == 0.0 and self._spins > 2:
+            timeout = 0.01  # a handler that did not clear its deadline must not spin the loop
+        try:
+            return await asyncio.wait_for(self._queue.get(), timeout)
+        except asyncio.TimeoutError:
+            return None
+
+    async def _run_due(self) -> None:
+        now = self._clock.now()
+        due = [d for d in self._deadlines() if d.when <= now]
+        for deadline in due:
+            await deadline.handler()
+        still = [d.name for d in self._deadlines() if d.when <= now]
+        if due and still:
+            self._spins += 1
+            if self._spins == 3:
+                self.counters.internal_errors += 1
+                log.error("agent %s: deadlines %s did not clear", self.config.agent_id, still)
+        else:
+            self._spins = 0
+
+    def _deadlines(self) -> list[_Deadline]:
+        c = self.config
+        found: list[_Deadline] = []
+        turn_in = self._turn_in
+        if turn_in is not None:
+            found.append(
+                _Deadline(turn_in.last_chunk_at + c.utterance_idle_s, "utterance", self._utterance_idle)
+            )
+        out = self._turn_out
+        if out is not None and not out.tool_calls_open:
+            found.append(_Deadline(self._awaited_at + c.reply_timeout_s, "reply", self._reply_timed_out))
+        if self._barge is not None:
+            found.append(
+                _Deadline(self._barge.started_at + c.barge_in_window_s, "barge-in", self._judge_barge)
+            )
+        tool_deadline = self._tools.next_deadline()
+        if tool_deadline is not None:
+            found.append(_Deadline(tool_deadline, "tool verdict", self._tool_verdicts_late))
+        if self._reconnect_at is not None:
+            found.append(_Deadline(self._reconnect_at, "reconnect", self._reconnect))
+        reply = self._reply
+        now = self._clock.now()
+        playing_until = None if reply is None else reply.playing_until()
+        if playing_until is not None and playing_until > now:
+            found.append(_Deadline(playing_until, "playback", _nothing))
+        if self._idle(now):
+            if self._session is not None:
+                found.append(_Deadline(self._session_close_at(), "session", self._close_idle_session))
+            expires = self.context.expires_at()
+            if expires is not None:
+                found.append(_Deadline(expires, "conversation", self._conversation_expired))
+        return found
+
+    def _idle(self, now: float) -> bool:
+        """Nothing pending: no turn, no tool call, no barge-in, no retry, nothing audible of ours."""
+        return (
+            self._turn_in is None
+            and self._turn_out is None
+            and not self._waiting
+            and self._barge is None
+            and len(self._tools) == 0
+            and self._reconnect_at is None
+            and not (self._reply is not None and self._reply.is_playing(now))
+        )
+
+    # --- dispatch ----------------------------------------------------------------------------
+
+    async def _handle(self, item: RobotInput | SessionMessage) -> None:
+        if isinstance(item, (SessionOpened, SessionEvent, SessionFailed)):
+            await self._on_session_message(item)
+        elif isinstance(item, UtteranceChunk):
+            await self._on_chunk(item)
+        elif isinstance(item, VoiceActivity):
+            if item.active:
+                await self._speech_onset()
+        elif isinstance(item, PlaybackStatus):
+            self._on_playback(item)
+        elif isinstance(item, PromptText):
+            await self._on_prompt_text(item)
+        elif isinstance(item, AttentionChanged):
+            if item.state is not self._attention:
+                log.info("agent %s: attention %s", self.config.agent_id, item.state.value)
+            self._attention = item.state
+        elif isinstance(item, CameraFrame):
+            self._on_frame(item)
+        elif isinstance(item, CommandStatus):
+            self._on_verdict(item)
+        elif isinstance(item, InputLost):
+            self.counters.inputs_lost += item.count if item.count is not None else 1
+            log.warning(
+                "agent %s: lost %s message(s) of %s: %s",
+                self.config.agent_id,
+                "unknown" if item.count is None else item.count,
+                item.topic,
+                item.reason,
+            )
+        elif isinstance(item, ConversationReset):
+            await self._new_conversation("external reset", item.conversation_id)
+        elif isinstance(item, SharedTurn):
+            if self.config.context_source is ContextSource.SHARED:
+                self.context.add(item.role, item.text, self._clock.now())
+
+    # --- user input --------------------------------------------------------------------------
+
+    async def _on_chunk(self, chunk: UtteranceChunk) -> None:
+        if not MIN_RATE <= chunk.sample_rate <= MAX_RATE or len(chunk.pcm) % 2:
+            self.counters.inputs_invalid += 1
+            log.warning(
+                "agent %s: refused an utterance chunk (rate %d, %d bytes)",
+                self.config.agent_id,
+                chunk.sample_rate,
+                len(chunk.pcm),
+            )
+            return
+        turn = self._turn_in
+        if turn is not None and turn.utterance_id == chunk.utterance_id:
+            await self._continue_utterance(turn, chunk)
+            return
+        if chunk.utterance_id in self._closed_utterances:
+            self.counters.stray_chunks += 1  # late chunk of a closed (or deliberately ignored) utterance
+            return
+        if turn is not None:  # a new utterance while the last one never got its end marker
+            self.counters.end_markers_missing += 1
+            log.warning(
+                "agent %s: utterance %d had no end marker; closed", self.config.agent_id, turn.utterance_id
+            )
+            await self._end_utterance(turn)
+        if self._attention is not Attention.AWAKE:
+            self.counters.ignored_not_awake += 1
+            self._closed_utterances.append(chunk.utterance_id)
+            return
+        await self._speech_onset()
+        session = self._ensure_session()
+        now = self._clock.now()
+        self._turns += 1
+        turn = Turn(
+            self._turns, "voice", now, self._keep_limit(session.input_sample_rate), chunk.utterance_id
+        )
+        turn.resampler = StreamResampler(chunk.sample_rate, session.input_sample_rate)
+        turn.last_chunk_at = now
+        if self._barge is not None and self._barge_turn is None:
+            turn.held = True
+            self._barge_turn = turn
+        self._turn_in = turn
+        self._send_frame(session)
+        await self._continue_utterance(turn, chunk)
+
+    async def _continue_utterance(self, turn: Turn, chunk: UtteranceChunk) -> None:
+        if chunk.chunk_sequence < turn.next_sequence:
+            self.counters.stray_chunks += 1  # duplicate or reordered
+            return
+        if chunk.chunk_sequence > turn.next_sequence:
+            missing = chunk.chunk_sequence - turn.next_sequence
+            self.counters.chunks_missing += missing
+            log.warning(
+                "agent %s: utterance %d is missing %d chunk(s)",
+                self.config.agent_id,
+                chunk.utterance_id,
+                missing,
+            )
+        turn.next_sequence = chunk.chunk_sequence + 1
+        turn.last_chunk_at = self._clock.now()
+        assert turn.resampler is not None
+        if chunk.sample_rate != turn.resampler.from_rate:
+            self.counters.inputs_invalid += 1
+            return
+        self._append_audio(turn, turn.resample(chunk.pcm, chunk.sample_rate, chunk.is_end))
+        if chunk.is_end:
+            await self._end_utterance(turn)
+        elif self._barge is not None and self._barge_turn is turn:
+            await self._judge_barge()
+
+    def _append_audio(self, turn: Turn, pcm: bytes) -> None:
+        turn.add_audio(pcm)
+        if not turn.held and self._session is not None and pcm:
+            self._session.send(SendAudio(pcm))
+            self._last_activity = self._clock.now()
+
+    async def _end_utterance(self, turn: Turn) -> None:
+        now = self._clock.now()
+        if not turn.ended and turn.resampler is not None and turn.resampler.received:
+            self._append_audio(turn, turn.resample(b"", turn.resampler.from_rate, True))
+        turn.ended_at = now
+        self._turn_in = None
+        if turn.utterance_id is not None:
+            self._closed_utterances.append(turn.utterance_id)
+        if self._barge is not None and self._barge_turn is turn:
+            await self._judge_barge()
+            if turn.held:  # judged false: the turn was noise, never sent
+                return
+        self._queue_commit(turn)
+
+    async def _utterance_idle(self) -> None:
+        turn = self._turn_in
+        if turn is not None:
+            self.counters.end_markers_missing += 1
+            log.warning(
+                "agent %s: utterance %s got no chunk for %.1f s and no end marker: closing it",
+                self.config.agent_id,
+                turn.utterance_id,
+                self.config.utterance_idle_s,
+            )
+            await self._end_utterance(turn)
+
+    async def _on_prompt_text(self, item: PromptText) -> None:
+        text = item.text.strip()
+        if not text:
+            return
+        if len(text) > MAX_TEXT_CHARS:
+            self.counters.inputs_invalid += 1
+            text = text[:MAX_TEXT_CHARS]
+        if self._attention is not Attention.AWAKE:
+            self.counters.ignored_not_awake += 1
+            return
+        session = self._ensure_session()
+        now = self._clock.now()
+        self._turns += 1
+        turn = Turn(self._turns, "text", now, self._keep_limit(session.input_sample_rate), text=text)
+        turn.ended_at = now
+        if self.config.context_source is ContextSource.OWN:
+            self.context.add(Role.USER, text, now)
+            await self._publish("prompt_transcript", self._port.publish_transcript(text))
+        self._queue_commit(turn)
+
+    def _on_frame(self, frame: CameraFrame) -> None:
+        if not frame.jpeg or len(frame.jpeg) > MAX_FRAME_BYTES:
+            self.counters.inputs_invalid += 1
+            return
+        self._frame = (frame.jpeg, self._clock.now())  # kept for the next turn; never opens a session
+        self._frame_sent = False
+
+    def _send_frame(self, session: Session) -> None:
+        if self._frame is None or self._frame_sent:
+            return
+        jpeg, at = self._frame
+        if self._clock.now() - at <= self.config.max_frame_age_s:
+            session.send(SendImage(jpeg))
+        self._frame_sent = True
+
+    # --- turns -------------------------------------------------------------------------------
+
+    def _queue_commit(self, turn: Turn) -> None:
+        """Commit now, or after the reply in progress (one reply at a time, whatever the provider)."""
+        if self._turn_out is None and self._reconnect_at is None:
+            self._commit(turn)
+        else:
+            self._waiting.append(turn)
+
+    def _commit(self, turn: Turn) -> None:
+        session = self._ensure_session()
+        self._turn_out = turn
+        turn.committed = True
+        if turn.kind == "text":
+            self._send_frame(session)
+            session.send(SendText(turn.text))
+        else:
+            session.send(EndOfTurn())
+        self._last_activity = self._awaited_at = self._committed_at = self._clock.now()
+
+    async def _finish_turn(self, turn: Turn, outcome: str) -> None:
+        now = self._clock.now()
+        ended = turn.ended_at if turn.ended_at is not None else now
+        first = None if turn.first_audio_at is None else round(1000.0 * (turn.first_audio_at - ended), 1)
+        record = TurnMetrics(
+            self.config.agent_id,
+            self.context.conversation_id,
+            self._serial,
+            turn.number,
+            turn.kind,
+            outcome,
+            first,
+            round(1000.0 * (now - ended), 1),
+            turn.usage,
+        )
+        log.info(
+            "agent %s: turn %d %s (%s), first audio %s ms, reply %.0f ms, tokens in %d out %d",
+            self.config.agent_id,
+            turn.number,
+            outcome,
+            turn.kind,
+            first,
+            record.reply_ms,
+            turn.usage.input_tokens,
+            turn.usage.output_tokens,
+        )
+        if self._turn_out is turn:
+            self._turn_out = None
+        self.counters.turns += 1
+        if self._session is not None:
+            self._session.turns += 1
+        await self._publish("metrics", self._port.publish_metrics(record))
+        if self._waiting and self._turn_out is None and self._reconnect_at is None:
+            self._commit(self._waiting.popleft())
+        if self._idle(now) and (self._session_ending or self._recycle or self._rotation_due(now)):
+            await self._close_session(self._session_ending or self._recycle or "rotation before the limit")
+
+    async def _fail_turn(self, turn: Turn, why: str) -> None:
+        self.counters.turns_failed += 1
+        await self._report(f"turn {turn.number} failed: {why}")
+        await self._finish_turn(turn, "failed")
+
+    async def _reply_timed_out(self) -> None:
+        turn = self._turn_out
+        if turn is None:
+            return
+        # A reply that started is failed; one that never started is replayed on a new session.
+        await self._lose_session(
+            f"no answer from the provider within {self.config.reply_timeout_s:g} s",
+            connected=True,
+            error=None,
+        )
+
+    # --- barge-in ----------------------------------------------------------------------------
+
+    async def _speech_onset(self) -> None:
+        if self._attention is not Attention.AWAKE:
+            return
+        now = self._clock.now()
+        reply = self._reply
+        if (
+            self.config.barge_in
+            and self._barge is None
+            and reply is not None
+            and not reply.cut
+            and reply.is_playing(now)
+        ):
+            # Cut the player first: no provider round trip between the user's voice and silence.
+            stamp = self._clock.wall()
+            await self._publish(
+                "interruption_signal", self._port.publish_interruption(reply.stream_id, "barge_in", stamp)
+            )
+            self.counters.barge_ins += 1
+            self._barge = PendingBargeIn(reply, reply.stream_id, now)
+            self._barge_turn = None
+            log.info(
+                "agent %s: barge-in on %s at %d ms", self.config.agent_id, reply.stream_id, reply.played_ms()
+            )
+        self._ensure_session()  # the connect hides behind the utterance that follows
+
+    async def _judge_barge(self) -> None:
+        barge = self._barge
+        if barge is None:
+            return
+        turn = self._barge_turn
+        verdict = judge(
+            turn.speech_ms if turn is not None else 0.0,
+            turn is not None and turn.ended,
+            self._clock.now() - barge.started_at,
+            self.config.min_barge_in_ms,
+            self.config.barge_in_window_s,
+        )
+        if verdict is Verdict.WAIT:
+            return
+        self._barge = None
+        self._barge_turn = None
+        reply = barge.reply
+        if verdict is Verdict.CONFIRMED:
+            reply.cut = True
+            self._cut.add(reply.response_id)
+            played = reply.played_ms()
+            if self._session is not None and self._session.serial == reply.session:
+                self._session.send(Interrupt(reply.response_id, reply.item_id, played))
+            log.info(
+                "agent %s: barge-in confirmed; %s cut at %d ms", self.config.agent_id, barge.stream_id, played
+            )
+            if turn is not None:
+                turn.held = False
+                if self._session is not None and turn.audio:
+                    self._session.send(SendAudio(bytes(turn.audio)))
+        else:
+            self.counters.false_barge_ins += 1
+            if turn is not None and self._turn_in is turn:  # still talking, but too little too late: noise
+                self._turn_in = None
+                if turn.utterance_id is not None:
+                    self._closed_utterances.append(turn.utterance_id)
+            await self._resume(reply)
+        answered = self._turn_out
+        if reply.generation_done and answered is not None and answered.number == reply.turn:
+            await self._finish_turn(answered, "interrupted" if reply.cut else "completed")
+
+    async def _resume(self, reply: ReplyAudio) -> None:
+        """A false barge-in: play what the user did not hear, as a new stream."""
+        old = reply.stream_id
+        rest = reply.restart_stream(self._new_stream_id())
+        log.info(
+            "agent %s: false barge-in; resuming %s as %s from %d ms (%.2f s left)",
+            self.config.agent_id,
+            old,
+            reply.stream_id,
+            reply.played_ms(),
+            len(rest) / reply.bytes_per_s,
+        )
+        for piece in pieces(rest, reply.sample_rate):
+            await self._publish_voice(reply, piece)
+        if reply.generation_done:
+            await self._end_stream(reply)
+
+    def _on_playback(self, status: PlaybackStatus) -> None:
+        reply = self._reply
+        if reply is not None and status.stream_id == reply.stream_id:
+            reply.status = status
+            reply.status_at = self._clock.now()
+            if status.speaking:
+                self._last_activity = self._clock.now()
+
+    # --- provider events ---------------------------------------------------------------------
+
+    async def _on_session_message(self, message: SessionMessage) -> None:
+        session = self._session
+        if session is None or message.serial != session.serial:
+            return  # from a session already closed
+        if isinstance(message, SessionOpened):
+            self.counters.sessions_opened += 1
+            log.info(
+                "agent %s: session %d open (%s)", self.config.agent_id, session.serial, session.provider.name
+            )
+        elif isinstance(message, SessionFailed):
+            await self._lose_session(message.reason, message.connected, message.error)
+        else:
+            self._last_activity = self._awaited_at = self._clock.now()
+            await self._on_provider_event(session, message.event)
+
+    async def _on_provider_event(self, session: Session, event: ProviderEvent) -> None:
+        turn = self._turn_out
+        if (
+            isinstance(event, (AssistantAudio, AssistantTranscript, AssistantText, ToolCall))
+            and turn is not None
+        ):
+            if not turn.reply_started:
+                turn.reply_started = True
+                turn.audio = bytearray()  # the reply started: no replay needed any more
+                self._attempts = 0
+        if isinstance(event, AssistantAudio):
+            await self._on_audio(turn, event)
+        elif isinstance(event, UserTranscript):
+            self._add_usage(session, turn, event.usage)
+            if not event.text.strip():
+                self.counters.empty_transcripts += 1
+                log.info("agent %s: the provider heard no words", self.config.agent_id)
+            elif self.config.context_source is ContextSource.OWN:
+                self.context.add_user_before_reply(event.text, self._clock.now(), self._committed_at)
+                await self._publish("prompt_transcript", self._port.publish_transcript(event.text.strip()))
+        elif isinstance(event, AssistantTranscript):
+            if event.final:
+                await self._assistant_said(event.text, event.response_id)
+        elif isinstance(event, AssistantText):
+            if event.final:
+                await self._on_text_reply(event.text, event.response_id)
+        elif isinstance(event, ToolCall):
+            await self._on_tool_call(session, turn, event)
+        elif isinstance(event, ResponseDone):
+            await self._on_response_done(session, turn, event)
+        elif isinstance(event, Interrupted):
+            reply = self._reply
+            if reply is not None and reply.response_id == event.response_id:
+                reply.generation_done = True
+                await self._end_stream(reply)
+        elif isinstance(event, SessionEnding):
+            self._session_ending = f"the provider is ending the session ({event.reason})"
+            log.info(
+                "agent %s: %s; rotating at the next turn boundary", self.config.agent_id, self._session_ending
+            )
+        else:
+            await self._on_provider_error(event)
+
+    async def _on_audio(self, turn: Turn | None, event: AssistantAudio) -> None:
+        if not self.config.speaks or event.response_id in self._cut or not event.pcm:
+            return
+        if not MIN_RATE <= event.sample_rate <= MAX_RATE or len(event.pcm) % 2:
+            self.counters.inputs_invalid += 1
+            return
+        reply = self._reply
+        if reply is None or reply.response_id != event.response_id:
+            reply = ReplyAudio(
+                event.response_id,
+                event.item_id,
+                event.sample_rate,
+                self._new_stream_id(),
+                self._serial,
+                turn.number if turn is not None else 0,
+            )
+            self._reply = reply
+        if reply.sample_rate != event.sample_rate:
+            self.counters.inputs_invalid += 1
+            return
+        reply.keep(event.pcm)
+        if self._barge is not None and self._barge.reply is reply:
+            return  # held while we find out whether the user really took the floor
+        await self._publish_voice(reply, event.pcm)
+        if turn is not None and turn.first_audio_at is None:
+            turn.first_audio_at = self._clock.now()
+
+    async def _assistant_said(self, text: str, response_id: str) -> None:
+        text = text.strip()
+        if not text:
+            return
+        if self.config.context_source is ContextSource.OWN:
+            heard = f"{text} [cut off by the user]" if response_id in self._cut else text
+            self.context.add(Role.ASSISTANT, heard, self._clock.now())
+        await self._publish("response_text", self._port.publish_text(text))
+
+    async def _on_text_reply(self, text: str, response_id: str) -> None:
+        if self.config.role is AgentRole.COMMAND:
+            if text.strip():
+                await self._publish("response_cmd", self._port.publish_cmd(text.strip()))
+        else:
+            await self._assistant_said(text, response_id)
+
+    async def _on_tool_call(self, session: Session, turn: Turn | None, call: ToolCall) -> None:
+        self.counters.tool_calls += 1
+        if self.config.role is not AgentRole.TOOLS or call.name != TOOL_NAME:
+            session.send(SendToolResult(call.call_id, result_json(False, "", f"no tool named {call.name!r}")))
+            return
+        try:
+            command = parse_command(call.arguments)
+        except BadToolCall as error:
+            session.send(SendToolResult(call.call_id, result_json(False, "", str(error))))
+            return
+        if turn is not None:
+            turn.tool_calls_open.add(call.call_id)
+            turn.tool_responses.add(call.response_id)
+        self._tools.add(call.call_id, command, self._clock.now() + self.config.tool_verdict_timeout_s)
+        await self._publish("response_cmd", self._port.publish_cmd(command))
+
+    def _on_verdict(self, verdict: CommandStatus) -> None:
+        call = self._tools.match(verdict)
+        if call is None:
+            return  # a verdict for a command some other agent (or a person) sent
+        self._deliver_tool_result(
+            call.call_id, result_json(verdict.accepted, verdict.command or call.command, verdict.reason)
+        )
+
+    async def _tool_verdicts_late(self) -> None:
+        for call in self._tools.expired(self._clock.now()):
+            self.counters.tool_timeouts += 1
+            log.warning(
+                "agent %s: no verdict for %r within %g s",
+                self.config.agent_id,
+                call.command,
+                self.config.tool_verdict_timeout_s,
+            )
+            self._deliver_tool_result(
+                call.call_id, result_json(False, call.command, "no answer from the robot")
+            )
+
+    def _deliver_tool_result(self, call_id: str, output: str) -> None:
+        if self._session is not None:
+            self._session.send(SendToolResult(call_id, output))
+        turn = self._turn_out
+        if turn is not None:
+            turn.tool_calls_open.discard(call_id)
+        self._last_activity = self._awaited_at = self._clock.now()  # the reply deadline restarts
+
+    async def _on_response_done(self, session: Session, turn: Turn | None, done: ResponseDone) -> None:
+        self._add_usage(session, turn, done.usage)
+        reply = self._reply
+        if reply is not None and reply.response_id == done.response_id:
+            reply.generation_done = True
+            barge = self._barge
+            if not reply.cut and not (barge is not None and barge.reply is reply):
+                await self._end_stream(reply)
+        if turn is None:
+            return
+        if done.status is ResponseStatus.FAILED:
+            await self._fail_turn(turn, f"the provider failed the reply ({done.reason or 'no reason'})")
+        elif turn.tool_calls_open or done.response_id in turn.tool_responses:
+            return  # the reply continues once the verdicts are in (a tool-calling response is never the last)
+        elif self._barge is not None and self._barge.reply is reply:
+            return  # finished when the barge-in is judged
+        else:
+            outcome = "interrupted" if done.response_id in self._cut else done.status.value
+            await self._finish_turn(turn, outcome)
+
+    async def _on_provider_error(self, error: ProviderError) -> None:
+        self.counters.provider_errors += 1
+        if error.fatal:
+            raise AgentFatal(_fatal_message(error))
+        if error.retry_after_s is not None:
+            self._not_before = max(self._not_before, self._clock.now() + error.retry_after_s)
+            log.warning(
+                "agent %s: rate limited (%s); no new session for %.1f s",
+                self.config.agent_id,
+                error.message,
+                error.retry_after_s,
+            )
+        else:
+            log.warning("agent %s: provider error %s: %s", self.config.agent_id, error.code, error.message)
+
+    def _add_usage(self, session: Session, turn: Turn | None, usage: Usage) -> None:
+        session.usage = session.usage + usage
+        if turn is not None:
+            turn.usage = turn.usage + usage
+
+    # --- sessions ----------------------------------------------------------------------------
+
+    def _ensure_session(self) -> Session:
+        if self._session is not None:
+            return self._session
+        try:
+            provider = self._factory()
+        except Exception as error:
+            raise AgentFatal(f"cannot create the provider: {error}") from error
+        now = self._clock.now()
+        self._serial += 1
+        setup = SessionSetup(
+            self._instructions,
+            self.context.history(now),
+            (ROBOT_COMMAND_TOOL,) if self.config.role is AgentRole.TOOLS else (),
+            audio_out=self.config.speaks,
+        )
+        timeouts = SessionTimeouts(
+            self.config.connect_timeout_s, self.config.op_timeout_s, self.config.close_timeout_s
+        )
+        session = Session(self._serial, provider, setup, timeouts, self._clock, self._queue.put_nowait)
+        session.start(delay_s=max(0.0, self._not_before - now, (self._reconnect_at or now) - now))
+        self._session = session
+        self._last_activity = now
+        self._frame_sent = self._frame is None
+        if self._reconnect_at is not None:  # a new utterance came before the retry: retry now, behind it
+            self._reconnect_at = None
+            self._replay(session)
+        return session
+
+    async def _close_session(self, reason: str) -> None:
+        session = self._session
+        if session is None:
+            return
+        self._session = None
+        self._session_ending = ""
+        self._recycle = ""
+        billed = await session.close()
+        record = SessionMetrics(
+            self.config.agent_id,
+            self.context.conversation_id,
+            session.serial,
+            round(billed, 3),
+            session.turns,
+            reason,
+            session.usage,
+        )
+        log.info(
+            "agent %s: session %d closed (%s): billed %.1f s, %d turns, tokens in %d out %d",
+            self.config.agent_id,
+            session.serial,
+            reason,
+            billed,
+            session.turns,
+            session.usage.input_tokens,
+            session.usage.output_tokens,
+        )
+        await self._publish("metrics", self._port.publish_metrics(record))
+
+    def _session_close_at(self) -> float:
+        session = self._session
+        if self._session_ending or self._recycle:
+            return self._clock.now()
+        close_at = self._last_activity + self.config.pause_timeout_s
+        if session is not None and session.opened_at is not None:
+            close_at = min(close_at, session.opened_at + self._rotation_age())
+        return close_at
+
+    def _rotation_age(self) -> float:
+        session = self._session
+        limit = self.config.max_session_s
+        if session is not None:
+            limit = min(limit, session.provider.max_session_s)
+        margin = self.config.rotation_margin_s if self.config.rotation_margin_s < limit else 0.1 * limit
+        return limit - margin
+
+    def _rotation_due(self, now: float) -> bool:
+        session = self._session
+        return (
+            session is not None and session.opened_at is not None and session.age(now) >= self._rotation_age()
+        )
+
+    async def _close_idle_session(self) -> None:
+        now = self._clock.now()
+        if self._session is None or not self._idle(now):
+            return
+        if self._session_ending or self._recycle:
+            reason = self._session_ending or self._recycle
+        elif self._rotation_due(now):
+            reason = "rotation before the limit"
+        else:
+            reason = f"pause of {self.config.pause_timeout_s:g} s"
+        await self._close_session(reason)
+
+    async def _lose_session(self, reason: str, connected: bool, error: ProviderError | None) -> None:
+        """The session died (or was given up): fail what was answering, replay what was not."""
+        if error is not None and error.fatal:
+            raise AgentFatal(_fatal_message(error))
+        if error is not None and error.retry_after_s is not None:
+            self._not_before = max(self._not_before, self._clock.now() + error.retry_after_s)
+        if connected:
+            self.counters.sessions_failed += 1
+        else:
+            self.counters.connect_failures += 1
+        log.warning("agent %s: session %d lost: %s", self.config.agent_id, self._serial, reason)
+        await self._close_session(f"failed: {reason}")
+        turn = self._turn_out
+        if turn is not None and (turn.reply_started or not turn.replayable):
+            await self._fail_turn(turn, f"the provider session was lost ({reason})")
+        if self._tools:
+            for call in self._tools.expired(float("inf")):
+                log.info(
+                    "agent %s: tool call %s dropped with its session", self.config.agent_id, call.call_id
+                )
+        turn = self._turn_out
+        if turn is not None:  # never answered: it waits for the new session with the others
+            self._turn_out = None
+            self._waiting.appendleft(turn)
+        pending = [*self._waiting, *([self._turn_in] if self._turn_in is not None else [])]
+        if not pending:
+            return
+        self._attempts += 1
+        if self._attempts >= self.config.connect_attempts or any(not t.replayable for t in pending):
+            for lost in pending:
+                self.counters.utterances_undeliverable += 1
+                await self._report(
+                    f"turn {lost.number} ({lost.kind}) not delivered: {reason} ({self._attempts} attempt(s))"
+                )
+            if self._turn_in is not None and self._turn_in.utterance_id is not None:
+                self._closed_utterances.append(self._turn_in.utterance_id)  # its later chunks are stray
+            self._turn_out = self._turn_in = None
+            self._waiting.clear()
+            self._attempts = 0
+            return
+        delay = backoff_s(self._attempts, self.config.backoff_initial_s, self.config.backoff_max_s)
+        self._reconnect_at = max(self._clock.now() + delay, self._not_before)
+        log.info(
+            "agent %s: retrying %d turn(s) in %.1f s",
+            self.config.agent_id,
+            len(pending),
+            self._reconnect_at - self._clock.now(),
+        )
+
+    async def _reconnect(self) -> None:
+        self._ensure_session()  # replays the pending turns
+
+    def _replay(self, session: Session) -> None:
+        """Every turn not yet answered, in order, into a new session: the first is committed at once,
+        the others' audio follows it (their commits wait for the reply, as they did before)."""
+        first = self._waiting.popleft() if self._waiting else None
+        if first is not None:
+            if first.audio:
+                session.send(SendAudio(bytes(first.audio)))
+            self._commit(first)
+        for later in [*self._waiting, self._turn_in]:
+            if later is not None and later.audio and not later.held:
+                session.send(SendAudio(bytes(later.audio)))
+
+    async def _new_conversation(self, why: str, conversation_id: str = "") -> None:
+        now = self._clock.now()
+        old = self.context.conversation_id
+        new = self.context.new_conversation(now, self._clock.wall(), conversation_id)
+        log.info("agent %s: conversation %s → %s (%s)", self.config.agent_id, old, new, why)
+        if self._session is not None:
+            if self._idle(now):
+                await self._close_session(f"new conversation ({why})")
+            else:
+                self._recycle = f"new conversation ({why})"
+
+    async def _conversation_expired(self) -> None:
+        if self.context.expired(self._clock.now()):
+            await self._new_conversation("inactivity")
+
+    # --- output ------------------------------------------------------------------------------
+
+    def _new_stream_id(self) -> str:
+        self._streams += 1
+        return f"{self.config.agent_id}-{self._serial}-{self._streams}"
+
+    async def _publish_voice(self, reply: ReplyAudio, pcm: bytes) -> None:
+        if reply.stream_started_at is None:
+            reply.stream_started_at = self._clock.now()
+        chunk = VoiceChunk(reply.stream_id, pcm, reply.sample_rate, False, self._clock.wall())
+        await self._publish("response_voice", self._port.publish_voice(chunk))
+
+    async def _end_stream(self, reply: ReplyAudio) -> None:
+        if reply.ended_stream or reply.stream_started_at is None:
+            return
+        reply.ended_stream = True
+        chunk = VoiceChunk(reply.stream_id, b"", reply.sample_rate, True, self._clock.wall())
+        await self._publish("response_voice", self._port.publish_voice(chunk))
+
+    async def _publish(self, what: str, sending: Awaitable[None]) -> None:
+        """Publish within the deadline; a failure is counted and logged, never raised."""
+        try:
+            await asyncio.wait_for(sending, self.config.publish_timeout_s)
+        except Exception as error:
+            self.counters.publish_failures += 1
+            count = self.counters.publish_failures
+            if count <= 10 or count % 100 == 0:
+                log.warning(
+                    "agent %s: could not publish %s (%d failures): %r",
+                    self.config.agent_id,
+                    what,
+                    count,
+                    error,
+                )
+
+    async def _report(self, text: str) -> None:
+        log.warning("agent %s: %s", self.config.agent_id, text)
+        await self._publish("response_text", self._port.publish_text(f"[{self.config.agent_id}] {text}"))
+
+    def _keep_limit(self, rate: int) -> int:
+        return int(self.config.connect_buffer_s * rate) * 2
+
+
+async def _nothing() -> None:
+    """The playback estimate ran out: nothing to do but look at the deadlines again."""
+
+
+def _fatal_message(error: ProviderError) -> str:
+    return f"the provider refused to serve this agent: {error.code}: {error.message}"

@@ -1,0 +1,59 @@
+"""One user turn (an utterance or a typed text) from its first chunk to the end of its reply.
+
+The turn keeps its own audio (at the provider's rate) until the reply starts, so a session that
+fails before answering can be replaced and the turn replayed whole: nothing the user said is lost
+to a reconnect. Audio beyond `keep_limit_bytes` makes the turn non-replayable (reported if needed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from by_your_command.agents.events import Usage
+from by_your_command.audio.pcm import StreamResampler
+
+
+@dataclass
+class Turn:
+    number: int
+    kind: str  # "voice" | "text"
+    started_at: float
+    keep_limit_bytes: int
+    utterance_id: int | None = None
+    text: str = ""
+    resampler: StreamResampler | None = None
+    next_sequence: int = 0
+    speech_ms: float = 0.0  # user audio received (at its own rate)
+    last_chunk_at: float = 0.0
+    audio: bytearray = field(default_factory=bytearray)  # at the provider's input rate
+    replayable: bool = True
+    held: bool = False  # a pending barge-in holds the audio until the speech proves real
+    ended_at: float | None = None  # end marker (or text) received: the moment latency is measured from
+    committed: bool = False
+    reply_started: bool = False
+    first_audio_at: float | None = None
+    tool_calls_open: set[str] = field(default_factory=set)
+    tool_responses: set[str] = field(default_factory=set)  # responses that called tools: never the last
+    usage: Usage = field(default_factory=Usage)
+
+    @property
+    def ended(self) -> bool:
+        return self.ended_at is not None
+
+    def add_audio(self, pcm: bytes) -> None:
+        if len(self.audio) + len(pcm) > self.keep_limit_bytes:
+            self.replayable = False
+            return
+        self.audio += pcm
+
+    def resample(self, pcm: bytes, sample_rate: int, end: bool) -> bytes:
+        """Our VAD's audio at the provider's rate (the resampler was made for this turn)."""
+        assert self.resampler is not None
+        samples = np.frombuffer(pcm, dtype="<i2")
+        self.speech_ms += 1000.0 * len(samples) / sample_rate
+        out = self.resampler.push(samples)
+        if end:
+            out = np.concatenate([out, self.resampler.flush()])
+        return out.astype("<i2").tobytes()

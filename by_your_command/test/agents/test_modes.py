@@ -1,0 +1,128 @@
+"""Dual-agent mode (a command agent on the shared transcript) and tool mode (robot_command)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import pytest
+from fake_port import running_agent, speak
+from fake_provider import FakeFactory, Script
+from virtual_time import run_virtual
+
+from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
+from by_your_command.agents.events import (
+    AssistantText,
+    ResponseDone,
+    ResponseStatus,
+    ToolCall,
+    UserTranscript,
+)
+from by_your_command.agents.inputs import CommandStatus, SharedTurn
+from by_your_command.agents.provider import Role
+from by_your_command.agents.robot_tool import TOOL_NAME
+
+pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
+
+
+def command_reply(response_id: str, text: str) -> Script:
+    return [
+        (0.1, UserTranscript("look to the left")),
+        (0.1, AssistantText(response_id, "i1", text, final=True)),
+        (0.0, ResponseDone(response_id, ResponseStatus.COMPLETED)),
+    ]
+
+
+def test_command_agent_publishes_commands_only_and_keeps_the_shared_transcript() -> None:
+    async def scenario() -> None:
+        config = AgentConfig(role=AgentRole.COMMAND, context_source=ContextSource.SHARED, pause_timeout_s=5.0)
+        factory = FakeFactory(command_reply("r1", " pan@left "), command_reply("r2", "lookup"))
+        async with running_agent(config, factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            # the conversation agent (the authority) publishes the turns; this agent ingests them
+            agent.port.push(SharedTurn(Role.USER, "look to the left"))
+            agent.port.push(SharedTurn(Role.ASSISTANT, "Looking left."))
+            await asyncio.sleep(10.0)  # paused: the session closes
+            await speak(agent.port, 2, seconds=0.3)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        assert agent.port.of("cmd") == ["pan@left", "lookup"]
+        assert agent.port.voice() == [] and agent.port.of("transcript") == [] and agent.port.of("text") == []
+        setup = factory.created[1].setup
+        assert setup is not None and setup.audio_out is False
+        assert [(h.role, h.text) for h in setup.history] == [
+            (Role.USER, "look to the left"),
+            (Role.ASSISTANT, "Looking left."),
+        ]
+
+    run_virtual(scenario())
+
+
+def tool_call(response_id: str, call_id: str, command: str) -> Script:
+    return [
+        (0.1, ToolCall(response_id, call_id, TOOL_NAME, json.dumps({"command": command}))),
+        (0.0, ResponseDone(response_id, ResponseStatus.COMPLETED)),
+    ]
+
+
+def said(response_id: str, text: str) -> Script:
+    return [
+        (0.1, AssistantText(response_id, "i", text, final=True)),
+        (0.0, ResponseDone(response_id, ResponseStatus.COMPLETED)),
+    ]
+
+
+def test_tool_mode_returns_the_processor_verdict_or_no_answer_from_the_robot() -> None:
+    async def scenario() -> None:
+        config = AgentConfig(role=AgentRole.TOOLS, tool_verdict_timeout_s=3.0)
+        factory = FakeFactory(
+            tool_call("r1", "c1", "pan@left"),
+            said("r2", "Done."),
+            tool_call("r3", "c2", "dance@moon"),
+            said("r4", "I can't do that."),
+        )
+        async with running_agent(config, factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(0.5)
+            assert agent.port.of("cmd") == ["pan@left"]
+            agent.port.push(CommandStatus("someone else's", "", False, "unknown"))  # not ours: ignored
+            agent.port.push(CommandStatus("Pan@Left", "pan@left", True, "arm_preset"))
+            await asyncio.sleep(1.0)
+            await speak(agent.port, 2, seconds=0.3)
+            await asyncio.sleep(5.0)  # the robot never answers this one
+            await agent.stop()
+        provider = factory.last
+        results = [json.loads(output) for name, (call, output) in _tool_results(provider.calls)]
+        assert results == [
+            {"accepted": True, "command": "pan@left", "reason": "arm_preset"},
+            {"accepted": False, "command": "dance@moon", "reason": "no answer from the robot"},
+        ]
+        assert provider.setup is not None and [t.name for t in provider.setup.tools] == [TOOL_NAME]
+        assert [t.outcome for t in agent.port.turns()] == ["completed", "completed"]
+        assert agent.runtime.counters.tool_timeouts == 1
+
+    run_virtual(scenario())
+
+
+def _tool_results(calls: list[tuple[str, object]]) -> list[tuple[str, tuple[str, str]]]:
+    return [(name, value) for name, value in calls if name == "tool_result"]  # type: ignore[misc]
+
+
+def test_bad_tool_arguments_are_answered_not_published() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(
+            [
+                (0.1, ToolCall("r1", "c1", TOOL_NAME, "{not json")),
+                (0.0, ResponseDone("r1", ResponseStatus.COMPLETED)),
+            ],
+            said("r2", "Sorry."),
+        )
+        async with running_agent(AgentConfig(role=AgentRole.TOOLS), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        assert agent.port.of("cmd") == []
+        [(_, (call, output))] = _tool_results(factory.last.calls)
+        assert call == "c1" and json.loads(output)["accepted"] is False
+
+    run_virtual(scenario())

@@ -1,0 +1,216 @@
+"""Session cycling for cost, rotation, and robustness: deadlines, reconnects, undeliverable turns,
+fatal errors, rate limits. All on virtual time against the scripted provider."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from fake_port import running_agent, speak
+from fake_provider import FakeFactory, FakeProvider, spoken_reply
+from virtual_time import run_virtual
+
+from by_your_command.agents.config import AgentConfig
+from by_your_command.agents.events import ProviderError, Usage, UserTranscript
+from by_your_command.agents.inputs import (
+    ConversationReset,
+    InputLost,
+    PlaybackStatus,
+    SharedTurn,
+    VoiceActivity,
+)
+from by_your_command.agents.provider import ProviderFailure, Role
+from by_your_command.agents.runtime import AgentFatal
+
+pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
+
+
+def test_pause_closes_the_session_and_speech_reopens_it_with_history_and_no_lost_audio() -> None:
+    async def scenario() -> None:
+        def slow_second_connect(provider: FakeProvider, index: int) -> None:
+            provider.connect_delay_s = 0.8 if index == 1 else 0.0
+
+        usage = Usage(input_audio_tokens=40, output_audio_tokens=60)
+        factory = FakeFactory(
+            spoken_reply("r1", seconds=0.4, usage=usage),
+            spoken_reply("r2", 0.2),
+            configure=slow_second_connect,
+        )
+        async with running_agent(AgentConfig(pause_timeout_s=10.0), factory) as agent:
+            await speak(agent.port, 1, seconds=0.5)
+            factory.last.emit(UserTranscript("what is your name", usage=Usage(input_text_tokens=5)))
+            await asyncio.sleep(9.0)
+            assert not factory.created[0].closed  # not yet: the pause is counted from the last activity
+            await asyncio.sleep(3.0)
+            assert factory.created[0].closed
+            [closed] = agent.port.sessions()
+            assert closed.close_reason.startswith("pause")
+            assert closed.usage == usage + Usage(input_text_tokens=5)
+            assert 10.0 <= closed.billed_s <= 11.0
+            # speech onset reopens; the slow connect hides behind the utterance and loses nothing
+            agent.port.push(VoiceActivity(True))
+            await speak(agent.port, 2, seconds=0.6)
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        second = factory.created[1]
+        assert len(second.audio) == 2 * int(0.6 * 24000)
+        assert second.setup is not None
+        assert [(h.role, h.text) for h in second.setup.history] == [
+            (Role.USER, "what is your name"),
+            (Role.ASSISTANT, "hello there"),
+        ]
+        assert len(factory.created) == 2
+
+    run_virtual(scenario())
+
+
+def test_the_agents_own_and_state_messages_never_open_a_paid_session() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory()
+        async with running_agent(AgentConfig(conversation_timeout_s=30.0), factory) as agent:
+            agent.port.push(ConversationReset("conv-x"))
+            agent.port.push(SharedTurn(Role.ASSISTANT, "hi"))
+            agent.port.push(PlaybackStatus("x", 10, speaking=True))
+            agent.port.push(VoiceActivity(False))
+            agent.port.push(InputLost("prompt_voice", None, "connection to the bridge lost"))
+            await asyncio.sleep(120.0)  # conversation timeouts pass too
+            await agent.stop()
+        assert factory.created == []
+        assert agent.runtime.counters.inputs_lost == 1
+
+    run_virtual(scenario())
+
+
+def test_rotation_before_the_provider_limit_happens_at_a_turn_boundary() -> None:
+    async def scenario() -> None:
+        def short_limit(provider: FakeProvider, index: int) -> None:
+            provider.max_session_s = 60.0
+
+        factory = FakeFactory(*[spoken_reply(f"r{i}", 0.2) for i in range(4)], configure=short_limit)
+        config = AgentConfig(rotation_margin_s=10.0, pause_timeout_s=100.0)
+        async with running_agent(config, factory) as agent:
+            for utterance in range(3):
+                await speak(agent.port, utterance + 1, seconds=0.3)
+                await asyncio.sleep(29.0)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        first = factory.created[0]
+        assert first.closed and first.names().count("end_of_turn") == 2
+        reasons = [s.close_reason for s in agent.port.sessions()]
+        assert reasons[0] == "rotation before the limit"
+        assert len(factory.created) == 2
+
+    run_virtual(scenario())
+
+
+def test_a_provider_that_never_answers_fails_the_turn_reports_it_and_recycles_the_session() -> None:
+    async def scenario() -> None:
+        def mute_first(provider: FakeProvider, index: int) -> None:
+            provider.replying = index > 0
+
+        factory = FakeFactory(spoken_reply("r1", 0.2), configure=mute_first)
+        config = AgentConfig(reply_timeout_s=5.0, connect_attempts=2)
+        async with running_agent(config, factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(4.0)
+            assert not factory.created[0].closed
+            await asyncio.sleep(30.0)
+            await agent.stop()
+        # first session recycled; the turn, never answered, was replayed whole on a second session
+        assert factory.created[0].closed
+        assert len(factory.created[1].audio) == 2 * int(0.3 * 24000)
+        assert [t.outcome for t in agent.port.turns()] == ["completed"]
+
+    run_virtual(scenario())
+
+
+def test_a_turn_that_cannot_be_delivered_is_reported_and_counted() -> None:
+    async def scenario() -> None:
+        def refuse(provider: FakeProvider, index: int) -> None:
+            provider.connect_error = OSError("network unreachable")
+
+        factory = FakeFactory(configure=refuse)
+        config = AgentConfig(connect_attempts=3, backoff_initial_s=0.5)
+        async with running_agent(config, factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(30.0)
+            await agent.stop()
+        assert len(factory.created) == 3
+        [report] = agent.port.of("text")
+        assert "not delivered" in report and "network unreachable" in report
+        assert agent.runtime.counters.utterances_undeliverable == 1
+        assert agent.runtime.counters.connect_failures == 3
+
+    run_virtual(scenario())
+
+
+def test_a_reply_cut_by_a_dropped_session_is_failed_and_reported() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=2.0, pace_s=0.2), spoken_reply("r2", 0.2))
+        async with running_agent(AgentConfig(), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(0.5)
+            factory.last.drop()
+            await asyncio.sleep(1.0)
+            await speak(agent.port, 2, seconds=0.3)
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        assert [t.outcome for t in agent.port.turns()] == ["failed", "completed"]
+        assert any("failed" in text for text in agent.port.of("text"))
+        assert agent.runtime.counters.turns_failed == 1
+
+    run_virtual(scenario())
+
+
+def test_an_auth_error_stops_the_agent_with_one_clear_message() -> None:
+    async def scenario() -> None:
+        def bad_key(provider: FakeProvider, index: int) -> None:
+            provider.connect_error = ProviderFailure(
+                ProviderError("invalid_api_key", "Incorrect API key provided", fatal=True)
+            )
+
+        factory = FakeFactory(configure=bad_key)
+        async with running_agent(AgentConfig(), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            with pytest.raises(AgentFatal, match="invalid_api_key: Incorrect API key provided"):
+                await asyncio.wait_for(agent.task, 10)
+        assert len(factory.created) == 1
+
+    run_virtual(scenario())
+
+
+def test_a_rate_limit_delays_the_next_connect() -> None:
+    async def scenario() -> None:
+        def limited(provider: FakeProvider, index: int) -> None:
+            if index == 0:
+                provider.connect_error = ProviderFailure(
+                    ProviderError("rate_limit_exceeded", "slow down", retry_after_s=20.0)
+                )
+
+        factory = FakeFactory(spoken_reply("r1", 0.2), configure=limited)
+        async with running_agent(AgentConfig(), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(10.0)
+            assert len(factory.created) == 1  # waiting out the limit
+            await asyncio.sleep(15.0)
+            await agent.stop()
+        assert [t.outcome for t in agent.port.turns()] == ["completed"]
+
+    run_virtual(scenario())
+
+
+def test_publishing_while_the_bridge_is_down_is_counted_not_fatal() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", 0.4), spoken_reply("r2", 0.2))
+        async with running_agent(AgentConfig(), factory) as agent:
+            agent.port.unavailable = True
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(1.0)
+            agent.port.unavailable = False
+            await speak(agent.port, 2, seconds=0.3)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        assert agent.runtime.counters.publish_failures >= 4
+        assert [t.turn for t in agent.port.turns()] == [2]
+
+    run_virtual(scenario())
