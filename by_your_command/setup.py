@@ -25,6 +25,8 @@ EXECUTABLES = {
     "audio_capture": "by_your_command.nodes.audio_capture:main",
     "echo_suppressor": "by_your_command.nodes.echo_suppressor:main",
     "simple_audio_player": "by_your_command.nodes.simple_audio_player:main",
+    "oai_realtime_agent": "by_your_command.cli.agent:main_realtime",
+    "oai_command_agent": "by_your_command.cli.agent:main_command",
 }
 
 # Ranges for users; the exact versions CI tests are pinned in requirements/*.txt (the lock).
@@ -37,6 +39,7 @@ INSTALL_REQUIRES = [
     "websockets>=15.0",  # websockets.asyncio, connect(proxy=...); apt's python3-websockets is 10.x
     "pillow>=10.3",  # Image.Resampling (9.1); 10.3 fixes CVE-2024-28219
     "onnxruntime>=1.19",  # first release built against numpy 2
+    "openai>=3.52",  # GA realtime.connect; not the [realtime] extra (it caps websockets <16; 17.4 works)
 ]
 # Imported only where used. silero-vad (the VAD's ONNX model) is not listed: its own dependencies
 # pull in torch, so it is installed with `pip install --no-deps "silero-vad>=6.2"` (README; the

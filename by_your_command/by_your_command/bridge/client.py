@@ -75,6 +75,9 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+# websockets logs handshake headers (the token) at DEBUG: give it a logger that never does.
+_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
+_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
 
 # Bridge status codes that report messages that will never arrive, and what the agent is told.
 _LOSS_REASONS = {
@@ -429,6 +432,7 @@ class BridgeClient:
             open_timeout=self.options.open_timeout_s,
             close_timeout=self.options.close_timeout_s,
             proxy=None,  # the bridge is local or on the robot LAN, never behind a web proxy
+            logger=_QUIET_WEBSOCKET_LOG,
         ) as connection:
             async with self._requests:
                 replay: list[Request] = [*self._advertised.values(), *self._subscriptions.values()]

@@ -18,6 +18,9 @@ from by_your_command.bridge.flow import LogLimiter
 from by_your_command.bridge.protocol import preview
 
 log = logging.getLogger(__name__)
+# websockets logs request headers (Authorization: the token) at DEBUG: give it a logger that never does.
+_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
+_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
 
 # Frames above the protocol limit get a status error; far larger ones close the connection (1009)
 # so a client cannot make us buffer arbitrary amounts before we can say no. websockets counts
@@ -70,6 +73,7 @@ class BridgeServer:
             process_request=self._admit,
             ping_interval=params.ping_interval_s or None,
             close_timeout=2,  # a client that stopped reading must not hold up shutdown for long
+            logger=_QUIET_WEBSOCKET_LOG,
         )
         self._allowed_origins = {normalize_origin(o) for o in params.allowed_origins} | own_origins(
             params.host, self.port

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from by_your_command import __version__
-from by_your_command.cli import expand_prompt
+from by_your_command.cli import agent, emulate, expand_prompt
 
 
 @dataclass(frozen=True)
@@ -94,6 +94,10 @@ SUBCOMMANDS: dict[str, Subcommand] = {
         expand_prompt.run,
         expand_prompt.add_arguments,
     ),
+    "emulate": Subcommand(
+        "run a local OpenAI Realtime stand-in with scripted replies", emulate.run, emulate.add_arguments
+    ),
+    "agent": Subcommand("run an agent process (an LLM talking to the robot)", agent.run, agent.add_arguments),
 }
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import json
 import socket
 from collections.abc import Coroutine
@@ -29,7 +30,7 @@ def url(server: BridgeServer, query: str = "") -> str:
     return f"ws://127.0.0.1:{server.port}/{query}"
 
 
-def test_client_subscribes_and_publishes_with_a_token() -> None:
+def test_client_subscribes_and_publishes_with_a_token(caplog: pytest.LogCaptureFixture) -> None:
     async def scenario() -> None:
         async with running_bridge(token="s3cret") as (server, graph):
             async with BridgeClient(url(server), ClientOptions(token="s3cret")) as client:
@@ -44,7 +45,9 @@ def test_client_subscribes_and_publishes_with_a_token() -> None:
                 await eventually(lambda: graph.published, what="publish")
                 assert graph.published == [(f"{NAMESPACE}/response_text", {"data": "hi robot"})]
 
-    run(scenario())
+    with caplog.at_level(logging.DEBUG):  # websockets logs handshake headers at DEBUG
+        run(scenario())
+    assert caplog.records and "s3cret" not in caplog.text  # neither side ever logs the token
 
 
 def test_unauthorized_clients_are_refused() -> None:

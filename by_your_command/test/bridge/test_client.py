@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import logging
 import math
 import random
 from collections.abc import Coroutine
@@ -128,6 +129,27 @@ async def receive_all(client: BridgeClient, count: int) -> list[Received | Lost]
 
 
 # --- 1. nothing the bridge or a callback does ends the client ------------------------------------
+
+
+def test_the_token_never_reaches_the_logs_even_at_debug(caplog: pytest.LogCaptureFixture) -> None:
+    token = "tok-3f9a1c77e0"  # noqa: S105 - a recognisable fake
+
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_text", options=ClientOptions(token=token))
+        try:
+            await bridge.send(publish("prompt_text", {"data": "hi"}))
+            assert isinstance(await client.receive(5), Received)
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    with caplog.at_level(logging.DEBUG):
+        run(scenario())
+    # the scripted server in this test is the stock websockets one: only the client's side counts
+    client_side = [r.getMessage() for r in caplog.records if not r.name.startswith("websockets.server")]
+    assert any("connected" in line for line in client_side)
+    assert not [line for line in client_side if token in line]
 
 
 def test_a_raising_status_callback_is_contained_and_counted() -> None:

@@ -1,0 +1,1 @@
+"""Local stand-ins for cloud realtime APIs (no ROS, no network beyond loopback), for tests and demos."""
