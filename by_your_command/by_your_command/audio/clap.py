@@ -1,74 +1,100 @@
-"""Clap detection on a mono audio stream; a double clap is the wake gesture.
+"""Double-clap detection on a mono int16 stream; a double clap is the wake gesture.
 
-Features per 100 ms analysis window (hop 50 ms, so windows overlap): peak of the smoothed envelope,
-zero-crossing rate, spectral centroid, rise time from 20 % of the peak to the peak (the seed's
-features), plus the context: the mean level in the 100 ms before the onset and 30-120 ms after
-the peak. A clap stands alone; a plosive in speech ("t", "k") is as sharp as a clap but sits
-between vowels, which the context catches. A clap found in one window holds off analysis for
-`refractory_ms` past its peak, so overlapping windows and its own decay never count it twice.
-A clap much weaker than the previous one within the double-clap window is taken for that clap's
-room echo and ignored.
+1. Onsets (audio/clap_onsets.py): the first sample where the 1 ms energy jumps `onset_rise_db`
+   above the 20 ms before it, found in exact integer arithmetic so that where block boundaries
+   fall never changes what is found.
+2. Each onset is measured on a window aligned to it (audio/clap_features.py), once the audio up to
+   `speech_context_ms` after it has arrived, and judged: loud enough over the room's noise floor,
+   a fast rise, a quiet moment before, a decay after, and nothing voiced around it (speech).
+3. Claps pair up: two claps `double_clap_min_gap_ms`..`double_clap_max_gap_ms` apart, alike in
+   level and timbre, with no other clap close before the first or after the second (applause and
+   clapping to music are rhythms, not the gesture). A much weaker clap soon after a clap is its
+   room echo and is ignored. The double clap is reported once nothing can still spoil it.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
-from by_your_command.audio.pcm import Int16Array, int16_to_float
+from by_your_command.audio.clap_features import ClapFeatures, FeatureMeter, FeatureWindow
+from by_your_command.audio.clap_onsets import OnsetDetector, StreamHistory
+from by_your_command.audio.pcm import Int16Array
 
-SMOOTHING_MS = 2.0  # envelope smoothing: long enough to ride over single zero crossings
-ONSET_FRACTION = 0.2
-LEAD_MS = 100.0  # context before the onset...
-LEAD_GAP_MS = 10.0  # ...ending this long before it
-TAIL_START_MS = 30.0  # context after the peak: from here...
-TAIL_END_MS = 120.0  # ...to here
+ONSET_HOLD_MS = 30.0  # one burst is one onset
 
 
 @dataclass(frozen=True)
 class ClapConfig:
-    sample_rate: int = field(default=16000, metadata={"help": "expected input rate (Hz)"})
-    zcr_threshold: float = field(default=0.28, metadata={"help": "min zero-crossing rate (crossings/sample)"})
-    peak_threshold: float = field(default=0.03, metadata={"help": "min envelope peak (full scale = 1)"})
-    max_rise_time_ms: float = field(default=60.0, metadata={"help": "max onset-to-peak time (ms)"})
-    min_spectral_centroid: float = field(default=1500.0, metadata={"help": "min spectral centroid (Hz)"})
-    double_clap_min_gap_ms: float = field(default=160.0, metadata={"help": "min gap between the claps (ms)"})
-    double_clap_max_gap_ms: float = field(default=1200.0, metadata={"help": "max gap between the claps (ms)"})
-    max_zcr_difference: float = field(default=0.15, metadata={"help": "the two claps must sound alike"})
-    echo_peak_ratio: float = field(
-        default=0.35, metadata={"help": "a clap below this fraction of the previous one's peak is its echo"}
+    sample_rate: int = field(default=16000, metadata={"help": "rate the detector runs at (Hz)"})
+    onset_rise_db: float = field(
+        default=10.0, metadata={"help": "1 ms energy jump over the 20 ms before (dB)"}
     )
-    max_context_ratio: float = field(
-        default=0.12,
-        metadata={"help": "max mean level 100 ms before / 30-120 ms after a clap, relative to its peak"},
+    min_peak: float = field(default=0.005, metadata={"help": "min sample peak of a clap (full scale 1)"})
+    min_snr_db: float = field(
+        default=12.0, metadata={"help": "min clap peak over the room's noise floor (dB)"}
     )
-    refractory_ms: float = field(default=120.0, metadata={"help": "one clap's decay is not another clap"})
+    max_rise_ms: float = field(default=10.0, metadata={"help": "max time from onset to near the peak (ms)"})
+    min_decay_db: float = field(
+        default=6.0, metadata={"help": "min peak over the mean level 30-100 ms after"}
+    )
+    min_lead_db: float = field(
+        default=12.0, metadata={"help": "min peak over the loudest 10 ms 120-10 ms before"}
+    )
+    min_tail_db: float = field(
+        default=6.0, metadata={"help": "min peak over the loudest 10 ms 30-140 ms after"}
+    )
+    voicing_threshold: float = field(
+        default=0.65, metadata={"help": "normalised autocorrelation (pitch 40-400 Hz) of a voiced frame"}
+    )
+    speech_context_ms: float = field(
+        default=250.0, metadata={"help": "voicing is looked for this far either side"}
+    )
+    context_level_db: float = field(
+        default=30.0, metadata={"help": "context this far below the clap's peak is ignored (dB)"}
+    )
+    max_voiced_frames: int = field(default=0, metadata={"help": "voiced 30 ms frames allowed around a clap"})
+    double_clap_min_gap_ms: float = field(default=150.0, metadata={"help": "min gap between the claps (ms)"})
+    double_clap_max_gap_ms: float = field(default=1000.0, metadata={"help": "max gap between the claps (ms)"})
+    max_level_difference_db: float = field(
+        default=10.0, metadata={"help": "the two claps' levels differ less"}
+    )
+    max_timbre_difference_octaves: float = field(
+        default=1.0, metadata={"help": "the two claps' spectral centroids differ less (octaves)"}
+    )
+    echo_level_db: float = field(
+        default=10.0,
+        metadata={"help": "a clap this much weaker than one within the max gap before is its echo"},
+    )
+    isolation_factor: float = field(
+        default=1.25,
+        metadata={"help": "no other clap within this many gaps before the first / after the second"},
+    )
     enabled: bool = field(default=True, metadata={"help": "publish wake_cmd on a double clap"})
 
     def __post_init__(self) -> None:
-        if self.sample_rate <= 0:
-            raise ValueError(f"sample_rate must be positive, got {self.sample_rate}")
+        if not 8000 <= self.sample_rate <= 96000:
+            raise ValueError(f"sample_rate must be 8000..96000 Hz, got {self.sample_rate}")
         if not 0 < self.double_clap_min_gap_ms < self.double_clap_max_gap_ms:
             raise ValueError("need 0 < double_clap_min_gap_ms < double_clap_max_gap_ms")
-        if self.refractory_ms >= self.double_clap_min_gap_ms:
-            raise ValueError("refractory_ms must be shorter than double_clap_min_gap_ms")
-
-
-@dataclass(frozen=True)
-class ClapFeatures:
-    peak: float
-    zcr: float
-    centroid_hz: float
-    rise_ms: float
-    lead_ratio: float
-    tail_ratio: float
+        if self.double_clap_min_gap_ms <= ONSET_HOLD_MS:
+            raise ValueError(
+                f"double_clap_min_gap_ms must exceed {ONSET_HOLD_MS} ms (one burst is one onset)"
+            )
+        if self.onset_rise_db <= 0 or self.max_rise_ms <= 0 or self.speech_context_ms <= 0:
+            raise ValueError("onset_rise_db, max_rise_ms and speech_context_ms must be positive")
+        if not 0 < self.voicing_threshold < 1:
+            raise ValueError(f"voicing_threshold must be in (0, 1), got {self.voicing_threshold}")
+        if self.max_voiced_frames < 0 or self.isolation_factor < 0:
+            raise ValueError("max_voiced_frames and isolation_factor must not be negative")
 
 
 @dataclass(frozen=True)
 class Clap:
-    time_s: float  # stream time of the envelope peak
+    onset: int  # stream sample index of the onset (samples since the stream began)
+    time_s: float  # the same, in seconds
     features: ClapFeatures
 
 
@@ -77,108 +103,129 @@ class DoubleClap:
     first: Clap
     second: Clap
 
+    @property
+    def gap_ms(self) -> float:
+        return (self.second.time_s - self.first.time_s) * 1000.0
 
-def window_features(
-    segment: npt.NDArray[np.float32], lead: int, window: int, sample_rate: int
-) -> tuple[ClapFeatures, int]:
-    """Features of segment[lead : lead + window], using the samples around it as context.
 
-    Returns the features and the index of the envelope peak relative to the window start.
-    """
-    ms = sample_rate / 1000.0
-    smoothing = max(int(SMOOTHING_MS * ms), 1)
-    envelope = np.convolve(np.abs(segment), np.ones(smoothing) / smoothing, mode="same")
-    peak_index = lead + int(np.argmax(envelope[lead : lead + window]))
-    peak = float(envelope[peak_index])
-    samples = segment[lead : lead + window]
-    signs = np.signbit(samples)
-    zcr = float(np.count_nonzero(signs[1:] != signs[:-1])) / max(window - 1, 1)
-    spectrum = np.abs(np.fft.rfft(samples))
-    freqs = np.fft.rfftfreq(window, 1.0 / sample_rate)
-    total = float(spectrum.sum())
-    centroid = float((freqs * spectrum).sum() / total) if total > 0 else 0.0
-    below = np.nonzero(envelope[: peak_index + 1] < ONSET_FRACTION * peak)[0]
-    # No quiet point before the peak: the onset is out of sight, so the rise is unknown.
-    onset = int(below[-1]) if len(below) else 0
-    rise_ms = (peak_index - onset) / ms if len(below) else float("inf")
-    before = envelope[max(onset - int(LEAD_MS * ms), 0) : max(onset - int(LEAD_GAP_MS * ms), 0)]
-    after = envelope[peak_index + int(TAIL_START_MS * ms) : peak_index + int(TAIL_END_MS * ms)]
-    lead_ratio = float(before.mean()) / peak if len(before) and peak > 0 else 0.0
-    tail_ratio = float(after.mean()) / peak if len(after) and peak > 0 else 1.0
-    return ClapFeatures(peak, zcr, centroid, rise_ms, lead_ratio, tail_ratio), peak_index - lead
+def rejection(config: ClapConfig, f: ClapFeatures) -> str | None:
+    """Why these features are not a clap's (the first test failed), or None for a clap."""
+    c = config
+    checks = (
+        (f.peak >= c.min_peak, "quiet"),
+        (f.snr_db >= c.min_snr_db, "near_noise_floor"),
+        (f.rise_ms <= c.max_rise_ms, "slow_rise"),
+        (f.lead_db >= c.min_lead_db, "sound_before"),
+        (f.decay_db >= c.min_decay_db and f.tail_db >= c.min_tail_db, "no_decay"),
+        (f.voiced_frames <= c.max_voiced_frames, "voice_around"),
+    )
+    return next((reason for ok, reason in checks if not ok), None)
 
 
 class ClapDetector:
-    """Feed blocks of any size; returns the claps and double claps they complete."""
+    """Feed blocks of any size; returns the claps and double claps found so far, in stream order.
+
+    What is found depends only on the samples, not on how they were cut into blocks. Decisions lag
+    the audio: a clap is judged `speech_context_ms` (+ ~30 ms) after it, a double clap once the
+    isolation time after its second clap has passed as well.
+    """
 
     def __init__(self, config: ClapConfig) -> None:
         self._config = config
         rate = config.sample_rate
-        self._window = rate // 10
-        self._hop = self._window // 2
-        # Each analysis looks back LEAD_MS before its window and ahead TAIL_END_MS after it.
-        self._lead = int((LEAD_MS + LEAD_GAP_MS) * rate / 1000)
-        self._segment = self._lead + self._window + int(TAIL_END_MS * rate / 1000)
-        self._refractory = int(config.refractory_ms * rate / 1000)
-        self._buffer = np.zeros(self._lead, dtype=np.float32)  # silence before the stream began
-        self._buffer_start = 0  # stream sample index of the current window's start
-        self._hold_until = 0  # no analysis window may start before this sample
-        self._last: Clap | None = None
-        self.claps = 0
-        self.double_claps = 0
-
-    def is_clap(self, f: ClapFeatures) -> bool:
-        c = self._config
-        return (
-            f.peak >= c.peak_threshold
-            and f.zcr >= c.zcr_threshold
-            and f.centroid_hz >= c.min_spectral_centroid
-            and f.rise_ms <= c.max_rise_time_ms
-            and f.lead_ratio <= c.max_context_ratio
-            and f.tail_ratio <= c.max_context_ratio
+        self._window = FeatureWindow.build(
+            rate, config.speech_context_ms, config.context_level_db, config.voicing_threshold
         )
+        self._meter = FeatureMeter(self._window)
+        self._min_gap = int(config.double_clap_min_gap_ms * rate / 1000)
+        self._max_gap = int(config.double_clap_max_gap_ms * rate / 1000)
+        self._slice = rate // 10
+        self.onsets = 0
+        self.claps = 0
+        self.echoes = 0
+        self.double_claps = 0
+        self.rhythms = 0  # double claps spoilt by a clap close before or after them
+        self.rejected: Counter[str] = Counter()
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new stream (after a gap in the audio); the counters carry on."""
+        rate = self._config.sample_rate
+        self._history = StreamHistory(self._window.before + self._window.after + self._slice)
+        self._onsets = OnsetDetector(rate, self._config.onset_rise_db, ONSET_HOLD_MS)
+        self._waiting: list[int] = []  # onsets whose context has not arrived yet
+        self._recent: list[Clap] = []  # accepted claps (not echoes) within the last max gap or so
+        self._candidate: DoubleClap | None = None
+        self._deadline = 0  # the candidate stands if no clap starts up to this sample
 
     def process(self, pcm: Int16Array) -> list[Clap | DoubleClap]:
-        self._buffer = np.concatenate([self._buffer, int16_to_float(pcm)])
         events: list[Clap | DoubleClap] = []
-        while len(self._buffer) >= self._segment:
-            start = self._buffer_start
-            if start >= self._hold_until:
-                events.extend(self._analyse(self._buffer[: self._segment], start))
-            self._buffer = self._buffer[self._hop :]
-            self._buffer_start += self._hop
+        for start in range(0, len(pcm), self._slice):  # bounded steps: the history stays small
+            events += self._process(pcm[start : start + self._slice])
         return events
 
-    def _analyse(self, segment: npt.NDArray[np.float32], start: int) -> list[Clap | DoubleClap]:
-        window = segment[self._lead : self._lead + self._window]
-        if float(np.max(np.abs(window))) < 0.5 * self._config.peak_threshold:
-            return []  # cheap reject: most windows are quiet
-        features, peak_index = window_features(segment, self._lead, self._window, self._config.sample_rate)
-        if not self.is_clap(features):
-            return []
-        peak_sample = start + peak_index
-        self._hold_until = peak_sample + self._refractory
-        clap = Clap(peak_sample / self._config.sample_rate, features)
-        return self._register(clap)
+    def _process(self, pcm: Int16Array) -> list[Clap | DoubleClap]:
+        self._history.append(pcm)
+        found = self._onsets.process(pcm)
+        self.onsets += len(found)
+        self._waiting += found
+        events: list[Clap | DoubleClap] = []
+        decided_until = self._history.end - self._window.after  # every onset before it is judged
+        while self._waiting and self._waiting[0] < decided_until:
+            onset = self._waiting.pop(0)
+            self._confirm(onset, events)  # the candidate may stand before this onset is judged
+            segment = self._history.segment(onset - self._window.before, onset + self._window.after)
+            features = self._meter.measure(segment)
+            reason = rejection(self._config, features)
+            if reason is not None:
+                self.rejected[reason] += 1
+                continue
+            events += self._register(Clap(onset, onset / self._config.sample_rate, features))
+        self._confirm(decided_until, events)
+        return events
+
+    def _confirm(self, decided_until: int, events: list[Clap | DoubleClap]) -> None:
+        if self._candidate is not None and decided_until > self._deadline:
+            events.append(self._candidate)
+            self.double_claps += 1
+            self._candidate = None
 
     def _register(self, clap: Clap) -> list[Clap | DoubleClap]:
         c = self._config
-        previous = self._last
-        if previous is not None:
-            gap_ms = (clap.time_s - previous.time_s) * 1000.0
-            if (
-                gap_ms <= c.double_clap_max_gap_ms
-                and clap.features.peak < c.echo_peak_ratio * previous.features.peak
-            ):
-                return []  # the room's echo of the previous clap
-            if (
-                c.double_clap_min_gap_ms <= gap_ms <= c.double_clap_max_gap_ms
-                and abs(clap.features.zcr - previous.features.zcr) <= c.max_zcr_difference
-            ):
-                self._last = None
-                self.claps += 1
-                self.double_claps += 1
-                return [clap, DoubleClap(previous, clap)]
-        self._last = clap
+        self._recent = [r for r in self._recent if clap.onset - r.onset <= 2 * self._max_gap]
+        previous = self._recent[-1] if self._recent else None
+        if previous is not None and clap.onset - previous.onset < self._min_gap:
+            return []  # the same clap's flutter or early reflections
+        if any(
+            clap.onset - r.onset <= self._max_gap
+            and clap.features.level_dbfs < r.features.level_dbfs - c.echo_level_db
+            for r in self._recent
+        ):
+            self.echoes += 1
+            return []  # the room's echo of an earlier clap
         self.claps += 1
+        self._recent.append(clap)
+        if self._candidate is not None:  # a third clap too close: a rhythm, not the gesture
+            self._candidate = None
+            self.rhythms += 1
+            return [clap]
+        if previous is not None and self._pairs(previous, clap):
+            gap = clap.onset - previous.onset
+            isolation = min(int(gap * c.isolation_factor), self._max_gap)
+            before = self._recent[-3] if len(self._recent) >= 3 else None
+            if before is not None and previous.onset - before.onset <= isolation:
+                self.rhythms += 1
+            else:
+                self._candidate = DoubleClap(previous, clap)
+                self._deadline = clap.onset + isolation
         return [clap]
+
+    def _pairs(self, first: Clap, second: Clap) -> bool:
+        c = self._config
+        a, b = first.features, second.features
+        return (
+            self._min_gap <= second.onset - first.onset <= self._max_gap
+            and abs(a.level_dbfs - b.level_dbfs) <= c.max_level_difference_db
+            and abs(float(np.log2(max(a.centroid_hz, 1.0) / max(b.centroid_hz, 1.0))))
+            <= c.max_timbre_difference_octaves
+        )

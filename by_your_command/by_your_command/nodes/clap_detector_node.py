@@ -15,7 +15,7 @@ from by_your_command.audio.clap import ClapConfig, ClapDetector, DoubleClap
 from by_your_command.audio.pcm import StreamResampler, to_mono
 from by_your_command.nodes._audio_msgs import pcm_of
 from by_your_command.nodes._params import declare_config
-from by_your_command.nodes._qos import RELIABLE, STREAM
+from by_your_command.nodes._qos import AUDIO_IN, RELIABLE
 
 STATS_PERIOD_S = 10.0
 # A short timer keeps the executor's wait short, so a SIGTERM is handled promptly.
@@ -29,7 +29,7 @@ class ClapDetectorNode(Node):
         self.detector = ClapDetector(self.config)
         self.enabled = self.config.enabled
         self.wake_pub = self.create_publisher(Bool, "wake_cmd", RELIABLE)
-        self.create_subscription(AudioChunk, "audio", self._on_audio, STREAM)
+        self.create_subscription(AudioChunk, "audio", self._on_audio, AUDIO_IN)
         self.add_on_set_parameters_callback(self._on_parameters)
         self.blocks_rejected = 0
         self.detector_errors = 0
@@ -89,7 +89,9 @@ class ClapDetectorNode(Node):
                 if self._resampler is None or self._resampler.from_rate != rate:
                     # A new rate is a new stream; the resampler checks the rate is plausible.
                     self._resampler = StreamResampler(rate, self.config.sample_rate)
-                    self.get_logger().warning(f"audio at {rate} Hz: resampling to {self.config.sample_rate} Hz")
+                    self.get_logger().warning(
+                        f"audio at {rate} Hz: resampling to {self.config.sample_rate} Hz"
+                    )
                 pcm = self._resampler.push(pcm)
         except ValueError as error:
             self.blocks_rejected += 1
@@ -101,7 +103,9 @@ class ClapDetectorNode(Node):
             events = self.detector.process(pcm)
         except Exception as error:  # a detector bug must not kill the node unseen: log, count, restart
             self.detector_errors += 1
-            self.get_logger().error(f"clap detector failed ({self.detector_errors} so far), restarting it: {error!r}")
+            self.get_logger().error(
+                f"clap detector failed ({self.detector_errors} so far), restarting it: {error!r}"
+            )
             self.detector.reset()
             return
         for event in events:

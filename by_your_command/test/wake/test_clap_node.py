@@ -8,7 +8,7 @@ from by_your_command_msgs.msg import AudioChunk
 from byc_testing import python_module, running_process, wait_for
 from ros_probe import probe_node
 from std_msgs.msg import Bool
-from wake.test_clap import scene
+from wake.clap_corpus import TIMBRES, simple_scene
 
 from by_your_command.nodes._audio_msgs import make_audio_chunk
 from by_your_command.nodes._qos import RELIABLE, STREAM
@@ -20,7 +20,8 @@ def test_double_clap_publishes_wake_cmd(ros_namespace: str) -> None:
         "by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={ros_namespace}"
     )
     # One second of room noise first: the node may match our publisher a little after we match it.
-    audio_pcm = scene([1.5, 2.0], seconds=3.0)
+    # A dark clap (cupped hands): the old detector's fixed zero-crossing threshold missed those.
+    audio_pcm = simple_scene([1.5, 2.0], seconds=4.0, timbre=TIMBRES[2], peak=0.1).pcm
     with probe_node(ros_namespace) as probe, running_process(command) as node:
         wakes = probe.listen(Bool, "wake_cmd", RELIABLE)
         audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
@@ -37,15 +38,21 @@ def test_double_clap_publishes_wake_cmd(ros_namespace: str) -> None:
             timeout=30,
             what="clap_detector_node to discover us",
         )
-        # 48 kHz stereo in: the node converts to what the detector expects
+        # 48 kHz stereo in: the node converts to what the detector expects (a stream resampler)
         from by_your_command.audio.pcm import resample
 
         stereo = np.repeat(resample(audio_pcm, 16000, 48000), 2)
         for offset in range(0, len(stereo), 3072):
+            if offset == 3072 * 30:  # ~1 s in, before the claps: untrusted input, dropped, not fatal
+                audio.publish(make_audio_chunk(audio_pcm[:3072], 4_294_967_291, 1))
+                audio.publish(make_audio_chunk(audio_pcm[:3071], 48000, 2))
             audio.publish(make_audio_chunk(stereo[offset : offset + 3072], 48000, 2))
             probe.spin(0.01)  # paced (~3x real time) so a best-effort queue of 10 never overflows
         wait_for(lambda: step(wakes), timeout=10, what="wake_cmd")
         assert [w.data for w in wakes] == [True]
+        assert node.poll() is None
+    log = node.stdout.read() if node.stdout else ""
+    assert "bad audio chunk dropped (1 so far)" in log, log  # refused with a clear error (then throttled)
 
 
 @pytest.mark.ros
@@ -72,4 +79,7 @@ def test_enabled_can_change_at_run_time_and_thresholds_cannot(ros_namespace: str
             return bool(future.result().results[0].successful)
 
         assert set_one(Parameter("enabled", value=False))
-        assert not set_one(Parameter("peak_threshold", value=0.5))
+        assert not set_one(Parameter("min_peak", value=0.5))
+        assert set_one(
+            Parameter("enabled", value=True)
+        )  # back on: a new stream, nothing paired across the gap
