@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from by_your_command import __version__
-from by_your_command.cli import agent, emulate, expand_prompt
+from by_your_command.cli import agent, emulate, expand_prompt, up
 
 
 @dataclass(frozen=True)
@@ -94,6 +94,7 @@ SUBCOMMANDS: dict[str, Subcommand] = {
         expand_prompt.run,
         expand_prompt.add_arguments,
     ),
+    "up": Subcommand("start a profile's nodes and agents (no ros2 launch needed)", up.run, up.add_arguments),
     "emulate": Subcommand(
         "run a local OpenAI Realtime stand-in with scripted replies", emulate.run, emulate.add_arguments
     ),

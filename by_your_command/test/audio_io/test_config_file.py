@@ -25,7 +25,7 @@ CONFIG = Path(__file__).resolve().parents[2] / "config" / "audio_io.yaml"
     ],
 )
 def test_config_file_matches_the_defaults(node: str, config_type: type) -> None:
-    params = yaml.safe_load(CONFIG.read_text())[node]["ros__parameters"]
+    params = yaml.safe_load(CONFIG.read_text())[f"/**/{node}"]["ros__parameters"]
     defaults = {f.name: f.default for f in dataclasses.fields(config_type)}
     assert set(params) <= set(defaults), f"unknown parameters: {set(params) - set(defaults)}"
     for name, value in params.items():

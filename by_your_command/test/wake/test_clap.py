@@ -267,6 +267,6 @@ def test_the_config_file_shows_the_defaults() -> None:
     import yaml
 
     path = Path(__file__).resolve().parents[2] / "config" / "vad.yaml"
-    shown = yaml.safe_load(path.read_text())["clap_detector_node"]["ros__parameters"]
+    shown = yaml.safe_load(path.read_text())["/**/clap_detector_node"]["ros__parameters"]
     defaults = {f.name: f.default for f in dataclasses.fields(ClapConfig)}
     assert shown == defaults

@@ -1,0 +1,14 @@
+"""Gemini Live with camera frames: a conversation agent and a command agent.
+
+A thin wrapper: the graph (nodes, parameters, agents) is described once in by_your_command.graph,
+which `byc up gemini_dual_agent` starts too. Arguments and defaults:
+    ros2 launch by_your_command gemini_dual_agent.launch.py --show-args
+"""
+
+from launch import LaunchDescription
+
+from by_your_command.graph.launch_actions import launch_description
+
+
+def generate_launch_description() -> LaunchDescription:
+    return launch_description("gemini_dual_agent")

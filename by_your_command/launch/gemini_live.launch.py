@@ -1,0 +1,14 @@
+"""One Gemini Live agent with camera frames, with the full audio graph.
+
+A thin wrapper: the graph (nodes, parameters, agents) is described once in by_your_command.graph,
+which `byc up gemini_live` starts too. Arguments and defaults:
+    ros2 launch by_your_command gemini_live.launch.py --show-args
+"""
+
+from launch import LaunchDescription
+
+from by_your_command.graph.launch_actions import launch_description
+
+
+def generate_launch_description() -> LaunchDescription:
+    return launch_description("gemini_live")
