@@ -1,0 +1,144 @@
+"""Provider kinds by name: validate a config's `provider` section and build the session factory.
+
+`openai` is here now; `offline` and `gemini` join PROVIDER_KINDS when they exist. The API key is
+read from the environment once, at start (a missing key is a config error, not a failure at the
+first utterance), and handed to the provider object; it is never put in a message.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
+
+from by_your_command.agents.app_config import ProviderChoice
+from by_your_command.agents.config import AgentConfigError
+from by_your_command.agents.provider import ProviderFactory
+
+# Header names that carry credentials: they come from the environment, never from a file.
+_SECRET_HEADERS = frozenset({"authorization", "api-key", "x-api-key", "proxy-authorization", "cookie"})
+
+
+@dataclass(frozen=True)
+class BuiltProvider:
+    factory: ProviderFactory
+    settings: Mapping[str, Any]  # every setting with its default filled in (for --check)
+    secret: str  # the key, so logging can redact it; "" for providers without one
+    key_env: str = ""  # the environment variable it came from
+
+
+@dataclass(frozen=True)
+class ProviderKind:
+    default_key_env: str  # "" = this provider needs no key
+    build: Callable[[Mapping[str, Any], str], BuiltProvider]  # (settings, key) → factory
+
+
+def build_provider(choice: ProviderChoice, environ: Mapping[str, str]) -> BuiltProvider:
+    """The factory for `choice`; AgentConfigError for an unknown kind, bad settings or a missing key."""
+    kind = PROVIDER_KINDS.get(choice.type)
+    if kind is None:
+        raise AgentConfigError(
+            [f"provider.type: must be one of {sorted(PROVIDER_KINDS)}, got {choice.type!r}"]
+        )
+    key_env = choice.api_key_env or kind.default_key_env
+    key = environ.get(key_env, "").strip() if key_env else ""
+    problems = []
+    built = None
+    try:
+        built = kind.build(choice.settings, key)
+    except AgentConfigError as error:
+        problems.extend(error.problems)
+    if key_env and not key:
+        where = f"the {choice.type} API key comes from the environment, never from files"
+        problems.append(f"{key_env} is not set: {where}")
+    if problems:
+        raise AgentConfigError(problems)
+    assert built is not None
+    return dataclasses.replace(built, key_env=key_env)
+
+
+# --- openai ------------------------------------------------------------------------------------
+
+
+def _build_openai(settings: Mapping[str, Any], key: str) -> BuiltProvider:
+    # Imported here: the openai SDK is only needed by agents that use it.
+    from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeConfig, OpenAIRealtimeProvider
+
+    config = typed_settings(OpenAIRealtimeConfig, settings, "provider")
+    bad_headers = sorted(name for name, _ in config.extra_headers if name.lower() in _SECRET_HEADERS)
+    if bad_headers:
+        raise AgentConfigError(
+            [f"provider.extra_headers.{bad_headers[0]}: credentials come from the environment, not files"]
+        )
+
+    def factory() -> OpenAIRealtimeProvider:
+        return OpenAIRealtimeProvider(config, api_key=key)
+
+    values = dataclasses.asdict(config)
+    values["extra_headers"] = dict(config.extra_headers)
+    return BuiltProvider(factory, values, key)
+
+
+PROVIDER_KINDS: dict[str, ProviderKind] = {
+    "openai": ProviderKind("OPENAI_API_KEY", _build_openai),
+}
+
+
+# --- typed settings ----------------------------------------------------------------------------
+
+
+def typed_settings(cls: Any, settings: Mapping[str, Any], prefix: str) -> Any:
+    """`cls(**settings)` for a frozen dataclass of simple fields, each value checked against its
+    type hint first (str, int, float, bool, Literal, optional, and a str→str mapping for a tuple of
+    pairs). Every problem names its key; all of them are raised together."""
+    hints = get_type_hints(cls)
+    names = [item.name for item in dataclasses.fields(cls)]
+    problems = [
+        f"{prefix}.{key}: unknown key (known: {', '.join(sorted(names))})"
+        for key in settings
+        if key not in names
+    ]
+    values = {}
+    for name in names:
+        if name in settings:
+            try:
+                values[name] = _typed(hints[name], settings[name])
+            except ValueError as error:
+                problems.append(f"{prefix}.{name}: {error}")
+    if not problems:
+        try:
+            return cls(**values)
+        except (TypeError, ValueError) as error:
+            problems.append(f"{prefix}: {error}")
+    raise AgentConfigError(problems)
+
+
+def _typed(hint: Any, value: Any) -> Any:
+    origin = get_origin(hint)
+    if origin is Literal:
+        allowed = list(get_args(hint))
+        if value not in allowed or type(value) is not type(allowed[0]):
+            raise ValueError(f"must be one of {allowed}, got {value!r}")
+        return value
+    if origin in (Union, types.UnionType):
+        options = [arg for arg in get_args(hint) if arg is not type(None)]
+        if value is None and len(options) < len(get_args(hint)):
+            return None
+        return _typed(options[0], value)
+    if hint == tuple[tuple[str, str], ...]:
+        if not isinstance(value, Mapping) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in value.items()
+        ):
+            raise ValueError("must be a mapping of strings to strings")
+        return tuple(value.items())
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
+            raise ValueError(f"must be a number, got {value!r}")
+        return float(value)
+    if hint in (int, str, bool):
+        if type(value) is not hint:
+            raise ValueError(f"must be {hint.__name__}, got {type(value).__name__} {value!r}")
+        return value
+    raise ValueError(f"cannot be set from a config file (type {hint})")

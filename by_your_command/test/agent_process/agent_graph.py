@@ -1,0 +1,363 @@
+"""Helpers for the agent process tests: the OpenAI emulator on its own event-loop thread (so a
+synchronous test can read what the agent sent), node and agent processes with their output
+collected, and a probe node that plays the microphone side and records every output topic."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import re
+import subprocess
+import threading
+from collections.abc import Callable, Coroutine, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import yaml
+from by_your_command_msgs.msg import AudioDataUtterance, CommandVerdict, Interruption, PlaybackStatus
+from byc_testing import REPO_ROOT, python_module, running_process, wait_for
+from diagnostic_msgs.msg import DiagnosticArray
+from ros_probe import Probe, probe_node
+from std_msgs.msg import Bool, String
+
+from by_your_command.agents.bridge_port import BridgePort
+from by_your_command.agents.config import parse_agent_config
+from by_your_command.audio.pcm import read_wav
+from by_your_command.emulators.openai_realtime import OpenAIRealtimeEmulator, ReceivedEvent, start
+from by_your_command.emulators.openai_script import Script
+from by_your_command.nodes._qos import LATCHED, RELIABLE
+
+T = TypeVar("T")
+
+# Recognisable, so a test can prove it never reaches any log line.
+FAKE_KEY = "sk-test-Rec0gnisableFakeKey-7f3a9c1e5b"
+CORPUS = REPO_ROOT / "by_your_command" / "test" / "data" / "corpus"
+VAD_RATE = 16000
+BRIDGE_OUTPUTS = (
+    "prompt_transcript",
+    "response_text",
+    "response_cmd",
+    "interruption_signal",
+    "agent_metrics",
+)
+
+
+def corpus_utterance(index: int = 0, session: str = "clean_en_us") -> np.ndarray:
+    """One spoken segment of the test corpus (16 kHz mono), as the VAD would cut it."""
+    segments = json.loads((CORPUS / "segments.json").read_text())["sessions"][session]["segments"]
+    samples, rate, _ = read_wav(CORPUS / f"{session}.wav")
+    assert rate == VAD_RATE
+    segment = segments[index]
+    return samples[int(segment["start"] * rate) : int(segment["end"] * rate)]
+
+
+# --- the emulator ------------------------------------------------------------------------------
+
+
+class EmulatorThread:
+    """`emulators.openai_realtime` served from a private loop; every read hops onto that loop."""
+
+    def __init__(self, script: Script) -> None:
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
+        self._thread.start()
+        self.handle: OpenAIRealtimeEmulator = self._run(start(script=script))
+        self.url = self.handle.websocket_base_url
+
+    def _run(self, coroutine: Coroutine[Any, Any, T]) -> T:
+        return asyncio.run_coroutine_threadsafe(coroutine, self._loop).result(timeout=10)
+
+    def _read(self, read: Callable[[], T]) -> T:
+        async def on_loop() -> T:
+            return read()
+
+        return self._run(on_loop())
+
+    def received(self) -> list[ReceivedEvent]:
+        return self._read(lambda: list(self.handle.received))
+
+    def events(self, type_: str) -> list[dict[str, Any]]:
+        return [record.event for record in self.received() if record.event["type"] == type_]
+
+    def types(self) -> list[str]:
+        return [str(record.event["type"]) for record in self.received()]
+
+    def connections(self) -> int:
+        return self._read(lambda: len(self.handle.handshakes))
+
+    def appended_ms(self) -> float:
+        """Milliseconds of 24 kHz PCM the client appended to the input buffer."""
+        total = sum(len(base64.b64decode(e["audio"])) for e in self.events("input_audio_buffer.append"))
+        return total / 48.0
+
+    def stop(self) -> None:
+        try:
+            self._run(self.handle.stop())
+        finally:
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(timeout=5)
+
+
+@contextmanager
+def emulator(script: Script) -> Iterator[EmulatorThread]:
+    running = EmulatorThread(script)
+    try:
+        yield running
+    finally:
+        running.stop()
+
+
+# --- processes ---------------------------------------------------------------------------------
+
+
+class Output:
+    """A process's output lines, collected on a thread so tests can wait on them."""
+
+    def __init__(self, process: subprocess.Popen[str]) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._pump, args=(process,), daemon=True)
+        self._thread.start()
+
+    def _pump(self, process: subprocess.Popen[str]) -> None:
+        assert process.stdout is not None
+        for line in process.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def find(self, pattern: str) -> re.Match[str] | None:
+        return next((m for line in list(self.lines) if (m := re.search(pattern, line))), None)
+
+    def finish(self) -> list[str]:
+        """All lines, once the process has exited."""
+        self._thread.join(timeout=10)
+        return self.lines
+
+    def __str__(self) -> str:
+        return "\n".join(self.lines[-60:])
+
+
+@contextmanager
+def bridge_process(namespace: str, port: int = 0) -> Iterator[tuple[int, Output]]:
+    command = python_module(
+        "by_your_command.nodes.ros_ai_bridge",
+        "--ros-args", "-r", f"__ns:={namespace}", "-p", f"port:={port}", "-p", "diagnostics_period_s:=0.2",
+    )  # fmt: skip
+    with running_process(command) as process:
+        output = Output(process)
+        match = wait_for(
+            lambda: output.find(r"listening on 127\.0\.0\.1:(\d+)") or process.poll() is not None,
+            timeout=30,
+            what="bridge startup",
+        )
+        assert isinstance(match, re.Match), str(output)
+        yield int(match.group(1)), output
+
+
+@contextmanager
+def player_process(namespace: str, wav: Path) -> Iterator[subprocess.Popen[str]]:
+    """The player with a WAV sink at the provider's 24 kHz, paced like a device."""
+    command = python_module(
+        "by_your_command.nodes.simple_audio_player",
+        "--ros-args", "-r", f"__ns:={namespace}",
+        "-p", "sink:=wav", "-p", f"wav_path:={wav}", "-p", "sample_rate:=24000", "-p", "realtime:=true",
+    )  # fmt: skip
+    with running_process(command) as process:
+        yield process
+
+
+@contextmanager
+def processor_process(namespace: str) -> Iterator[subprocess.Popen[str]]:
+    command = python_module(
+        "by_your_command.nodes.command_processor", "--ros-args", "-r", f"__ns:={namespace}",
+        "-p", "min_interval_s:=0.0",
+    )  # fmt: skip
+    with running_process(command) as process:
+        yield process
+
+
+def agent_config(
+    tmp_path: Path, emulator_url: str, agent_id: str = "talker", **settings: Any
+) -> tuple[Path, dict[str, Any]]:
+    """An agent config file pointed at an emulator; `settings` are AgentConfig keys."""
+    data: dict[str, Any] = {
+        "agent_id": agent_id,
+        "pause_timeout_s": 60.0,  # no session cycling in the middle of a test unless it asks
+        **settings,
+        "provider": {"type": "openai", "websocket_base_url": emulator_url, **settings.get("provider", {})},
+    }
+    path = tmp_path / f"{agent_id}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path, data
+
+
+@contextmanager
+def agent_process(
+    config: Path, bridge_port: int, key: str = FAKE_KEY, *options: str
+) -> Iterator[tuple[subprocess.Popen[str], Output]]:
+    command = python_module("by_your_command.cli.byc", "agent", "--config", str(config), *options)
+    env = {"OPENAI_API_KEY": key, "BYC_BRIDGE_URL": f"ws://127.0.0.1:{bridge_port}"}
+    with running_process(command, env=env) as process:
+        yield process, Output(process)
+
+
+def setup_requests(settings: dict[str, Any]) -> int:
+    """How many subscribe + advertise requests an agent with these settings sends at connect."""
+
+    class Counter:
+        requests = 0
+
+        async def subscribe(self, topic: str, msg_type: str | None = None) -> None:
+            self.requests += 1
+
+        async def advertise(self, topic: str, msg_type: str) -> None:
+            self.requests += 1
+
+    counter = Counter()
+    agent = {key: value for key, value in settings.items() if key not in ("provider", "bridge")}
+    port = BridgePort(counter, parse_agent_config(agent))  # type: ignore[arg-type]  # only these two
+    asyncio.run(port.setup())
+    return counter.requests
+
+
+# --- the probe ---------------------------------------------------------------------------------
+
+
+class GraphProbe:
+    """The microphone side (prompt_voice, prompt_text, voice_activity) and every output, recorded.
+    Spins on its own thread; lists are appended there and read here."""
+
+    def __init__(self, probe: Probe) -> None:
+        self.probe = probe
+        node = probe.node
+        self._subscriptions: list[Any] = []
+        self.voice = node.create_publisher(AudioDataUtterance, "prompt_voice", RELIABLE)
+        self.text = node.create_publisher(String, "prompt_text", RELIABLE)
+        self.activity = node.create_publisher(Bool, "voice_activity", RELIABLE)
+        self.transcripts: list[String] = self._listen(String, "prompt_transcript")
+        self.replies: list[String] = self._listen(String, "response_text")
+        self.commands: list[String] = self._listen(String, "response_cmd")
+        self.verdicts: list[CommandVerdict] = self._listen(CommandVerdict, "command_status")
+        self.interruptions: list[Interruption] = self._listen(Interruption, "interruption_signal")
+        self.playback: list[PlaybackStatus] = self._listen(PlaybackStatus, "playback_status")
+        self.metrics: list[String] = self._listen(String, "agent_metrics")
+        self.arm: list[String] = self._listen(String, "arm_preset")
+        self.speaking: list[Bool] = self._listen(Bool, "assistant_speaking", LATCHED)
+        self.diagnostics: list[DiagnosticArray] = self._listen(DiagnosticArray, "/diagnostics")
+        self._utterances = 0
+
+    def _listen(self, msg_type: Any, topic: str, qos: Any = RELIABLE) -> list[Any]:
+        store: list[Any] = []
+        self._subscriptions.append(self.probe.node.create_subscription(msg_type, topic, store.append, qos))
+        return store
+
+    def connected_to_bridge(self) -> bool:
+        """Our prompts reach the bridge and the bridge's publishers reach us (DDS matched both ways)."""
+        inputs = (self.voice, self.text, self.activity)
+        outputs = [sub for sub in self._subscriptions if sub.topic_name.rsplit("/", 1)[-1] in BRIDGE_OUTPUTS]
+        return all(pub.get_subscription_count() > 0 for pub in inputs) and all(
+            sub.get_publisher_count() > 0 for sub in outputs
+        )
+
+    def texts(self, messages: list[Any]) -> list[str]:
+        return [message.data for message in list(messages)]
+
+    def metric_records(self) -> list[dict[str, Any]]:
+        return [json.loads(message.data) for message in list(self.metrics)]
+
+    def say(self, pcm: np.ndarray, chunk_ms: int = 100) -> None:
+        """One utterance as the VAD publishes it: chunks, the last one carrying the end marker."""
+        self._utterances += 1
+        utterance_id = 1_700_000_000_000_000_000 + self._utterances
+        step = VAD_RATE * chunk_ms // 1000
+        pieces = [pcm[k : k + step] for k in range(0, len(pcm), step)] or [pcm]
+        for sequence, piece in enumerate(pieces):
+            message = AudioDataUtterance(
+                int16_data=piece.astype(np.int16).tolist(),
+                utterance_id=utterance_id,
+                chunk_sequence=sequence,
+                sample_rate=VAD_RATE,
+                channels=1,
+                is_utterance_end=sequence == len(pieces) - 1,
+            )
+            self.voice.publish(message)
+
+    def type_text(self, text: str) -> None:
+        self.text.publish(String(data=text))
+
+    def wait_nodes(self, check: Callable[[], None], player: bool = False, processor: bool = False) -> None:
+        """Until the player / command processor are in the graph. Start them before the bridge and
+        wait here: the bridge then matches them while it starts, so an agent's first command or reply
+        is not lost to DDS discovery (nothing in ROS queues for a subscriber not yet matched)."""
+        node = self.probe.node
+        topic = self.probe.topic
+
+        def up() -> bool:
+            check()
+            player_up = not player or (
+                bool(self.speaking) and node.count_subscribers(topic("response_voice")) > 0
+            )
+            processor_up = not processor or (
+                node.count_subscribers(topic("response_cmd")) > 1
+                and node.count_publishers(topic("command_status")) > 0
+            )
+            return player_up and processor_up
+
+        wait_for(up, timeout=40, what="the player / command processor in the graph")
+
+    def bridge_values(self, namespace: str) -> dict[str, str] | None:
+        for array in reversed(list(self.diagnostics)):
+            for status in array.status:
+                if status.name.startswith(namespace):
+                    return {kv.key: kv.value for kv in status.values}
+        return None
+
+    def wait_agents_ready(self, namespace: str, requests: list[int], timeout: float = 40.0) -> None:
+        """Until the bridge has one client per agent and each has sent all its setup requests
+        (subscriptions made: a prompt published now reaches the agent)."""
+
+        def ready() -> bool:
+            values = self.bridge_values(namespace)
+            if values is None or values.get("clients") != str(len(requests)):
+                return False
+            seen = sorted(int(v) for k, v in values.items() if k.endswith(".received"))
+            return all(have >= need for have, need in zip(seen, sorted(requests), strict=True))
+
+        wait_for(ready, timeout=timeout, what=f"{len(requests)} agent(s) subscribed at the bridge")
+        wait_for(self.connected_to_bridge, timeout=timeout, what="the probe matched with the bridge")
+        assert self.bridge_values(namespace) is not None
+        assert all(
+            v == "0" for k, v in (self.bridge_values(namespace) or {}).items() if k.endswith(".rejected")
+        ), "the bridge refused some of the agent's requests"
+
+
+@contextmanager
+def graph_probe(namespace: str) -> Iterator[GraphProbe]:
+    with probe_node(namespace, "agent_probe") as probe:
+        graph = GraphProbe(probe)
+        thread = threading.Thread(target=probe.executor.spin, daemon=True)
+        thread.start()
+        try:
+            yield graph
+        finally:
+            probe.executor.shutdown()
+            thread.join(timeout=5)
+
+
+def alive(*processes: subprocess.Popen[str]) -> Callable[[], None]:
+    """A check for wait loops: fail at once (with the output) when a process under test died."""
+
+    def check() -> None:
+        for process in processes:
+            assert process.poll() is None, f"{process.args!r} exited with {process.returncode}"
+
+    return check
+
+
+def until(condition: Callable[[], Any], what: str, check: Callable[[], None], timeout: float = 30.0) -> Any:
+    def poll() -> Any:
+        check()
+        return condition()
+
+    return wait_for(poll, timeout=timeout, interval=0.02, what=what)
