@@ -194,11 +194,11 @@ def _agents(chosen: Profile, options: GraphOptions) -> tuple[AgentSpec, ...]:
         return {**base, "provider": provider} if provider else base
 
     if chosen.agents is Agents.SINGLE:
-        return (
-            AgentSpec(
-                "agent", config(f"agent_{options.provider}.yaml"), overrides(options.model, options.voice)
-            ),
+        # One agent that talks and sends commands: the cloud providers' tool mode (robot_command).
+        single = (
+            "agent_offline.yaml" if options.provider == "offline" else f"agent_{options.provider}_tool.yaml"
         )
+        return (AgentSpec("agent", config(single), overrides(options.model, options.voice)),)
     return (
         AgentSpec(
             "conversation_agent",

@@ -15,8 +15,10 @@ CLAP_SECTION = {"sample_rate": 16000, "enabled": False}  # fields every clap det
 PLAYER_SECTION = {"sample_rate": 22050, "block_ms": 20}
 AGENT_CONFIGS = {
     "agent_openai.yaml": {"agent_id": "talker", "provider": {"model": "file-model", "voice": "alloy"}},
+    "agent_openai_tool.yaml": {"agent_id": "tool", "provider": {"model": "file-model", "voice": "alloy"}},
     "agent_openai_command.yaml": {"agent_id": "commander", "role": "command", "provider": {"model": "m2"}},
     "agent_gemini.yaml": {"agent_id": "gemini", "provider": {"model": "g-live"}},
+    "agent_gemini_tool.yaml": {"agent_id": "gemini_tool", "provider": {"model": "g-live"}},
     "agent_gemini_command.yaml": {"agent_id": "gemini_cmd", "role": "command"},
     "agent_offline.yaml": {"agent_id": "offline", "provider": {"grammar": "commands"}},
 }

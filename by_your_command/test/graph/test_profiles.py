@@ -82,9 +82,9 @@ def test_microphone_and_recorders(config_dir: Path, tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("profile", "extra", "agents", "vision"),
     [
-        ("oai_realtime", [], ["agent_openai.yaml"], False),
+        ("oai_realtime", [], ["agent_openai_tool.yaml"], False),
         ("oai_dual_agent", [], ["agent_openai.yaml", "agent_openai_command.yaml"], False),
-        ("gemini_live", ["frame_forwarder"], ["agent_gemini.yaml"], True),
+        ("gemini_live", ["frame_forwarder"], ["agent_gemini_tool.yaml"], True),
         ("gemini_dual_agent", ["frame_forwarder"], ["agent_gemini.yaml", "agent_gemini_command.yaml"], True),
         ("offline", [], ["agent_offline.yaml"], False),
     ],
