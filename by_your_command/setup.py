@@ -32,13 +32,17 @@ EXECUTABLES = {
 # Ranges for users; the exact versions CI tests are pinned in requirements/*.txt (the lock).
 # Lower bounds: the oldest releases with Python 3.10 wheels and the APIs the code uses (checked once
 # by running the unit tests on Python 3.10 with exactly these versions; CI tests only the lock).
+# numpy 1.x and 2.x both work: the code uses no numpy-2-only name, so ROS 2 Humble keeps its own
+# python3-numpy (1.21.5), which packages such as cv_bridge are compiled against.
 INSTALL_REQUIRES = [
-    "numpy>=2.0",  # np.concat (a numpy 2 name)
-    "scipy>=1.13",  # first release built against numpy 2
+    "numpy>=1.21",  # Humble's 1.21.5 (1.21.2: first Python 3.10 wheels)
+    "scipy>=1.7.2",  # first release with Python 3.10 wheels
     "pyyaml>=6.0",
     "websockets>=15.0",  # websockets.asyncio, connect(proxy=...); apt's python3-websockets is 10.x
     "pillow>=10.3",  # Image.Resampling (9.1); 10.3 fixes CVE-2024-28219
-    "onnxruntime>=1.19",  # first release built against numpy 2
+    # 1.12: first with Python 3.10 wheels, and the last accepting numpy 1.21.5 (1.13+ need 1.21.6).
+    # Built against numpy 1.x before 1.19; up to 1.18.0 without a numpy<2 cap (numpy 2: ImportError).
+    "onnxruntime>=1.12",
     "openai>=3.52",  # GA realtime.connect; not the [realtime] extra (it caps websockets <16; 17.4 works)
 ]
 # Imported only where used. silero-vad (the VAD's ONNX model) is not listed: its own dependencies
@@ -46,7 +50,8 @@ INSTALL_REQUIRES = [
 # corpus tests are tuned to the 6.2 model, 6.0 and 6.1 miss utterances in noise).
 EXTRAS_REQUIRE = {
     "audio": ["sounddevice>=0.4.6"],  # microphone and speaker devices (needs libportaudio2)
-    "aec": ["livekit>=1.1.4"],  # WebRTC AEC3; older releases fail test_echo (no high-pass)
+    # WebRTC AEC3; older releases fail test_echo (no high-pass). Every livekit needs numpy>=1.26.
+    "aec": ["livekit>=1.1.4"],
 }
 
 setup(
