@@ -106,17 +106,18 @@ _NAMES = [f"n{i}" for i in range(8)]
 
 @st.composite
 def acyclic_macros(draw: st.DrawFn) -> dict[str, str]:
-    """Macro i may only reference macros j > i: no cycles, depth < len(_NAMES)."""
+    """Macro i may only reference macros j > i: no cycles, depth < len(_NAMES). Literal text has
+    opening braces but never closing ones, so pieces can never spell a placeholder by accident."""
     macros = {}
     for index, name in enumerate(_NAMES):
         later = _NAMES[index + 1 :]
         parts = draw(
             st.lists(
                 st.one_of(
-                    st.text(alphabet="abc {}\n", max_size=5), st.sampled_from(later).map("{{{{{}}}}}".format)
+                    st.text(alphabet="abc {\n", max_size=5), st.sampled_from(later).map("{{{{{}}}}}".format)
                 )
                 if later
-                else st.text(alphabet="abc {}\n", max_size=5),
+                else st.text(alphabet="abc {\n", max_size=5),
                 max_size=4,
             )
         )
