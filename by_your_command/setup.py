@@ -44,6 +44,8 @@ INSTALL_REQUIRES = [
     # Built against numpy 1.x before 1.19; up to 1.18.0 without a numpy<2 cap (numpy 2: ImportError).
     "onnxruntime>=1.12",
     "openai>=3.52",  # GA realtime.connect; not the [realtime] extra (it caps websockets <16; 17.4 works)
+    "google-genai>=2.33",  # Gemini Live; 3.x needs Python 3.11, so 3.10 (Humble) gets 2.33
+    "cryptography>=42",  # the Gemini emulator's self-signed certificate (the SDK forces TLS)
 ]
 # Imported only where used. silero-vad (the VAD's ONNX model) is not listed: its own dependencies
 # pull in torch, so it is installed with `pip install --no-deps "silero-vad>=6.2"` (README; the

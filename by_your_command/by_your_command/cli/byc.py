@@ -96,7 +96,9 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     ),
     "up": Subcommand("start a profile's nodes and agents (no ros2 launch needed)", up.run, up.add_arguments),
     "emulate": Subcommand(
-        "run a local OpenAI Realtime stand-in with scripted replies", emulate.run, emulate.add_arguments
+        "run a local OpenAI Realtime or Gemini Live stand-in with scripted replies",
+        emulate.run,
+        emulate.add_arguments,
     ),
     "agent": Subcommand("run an agent process (an LLM talking to the robot)", agent.run, agent.add_arguments),
 }

@@ -10,19 +10,24 @@ import asyncio
 import sys
 from pathlib import Path
 
+from by_your_command.cli import emulate_gemini
 from by_your_command.emulators.openai_realtime import start
 from by_your_command.emulators.openai_script import Script, ScriptError, load_script
 
-VENDORS = ("openai",)
+VENDORS = ("openai", "gemini")
+DEFAULT_PORTS = {"openai": 8765, "gemini": 8766}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("vendor", choices=VENDORS, help="which API to emulate")
     parser.add_argument("--host", default="127.0.0.1", help="bind address (default: loopback only)")
-    parser.add_argument("--port", type=int, default=8765, help="TCP port; 0 picks a free one")
     parser.add_argument(
-        "--script", type=Path, help="YAML script of replies (format: emulators/openai_script.py)"
+        "--port", type=int, help="TCP port; 0 picks a free one (default: openai 8765, gemini 8766)"
     )
+    parser.add_argument(
+        "--script", type=Path, help="YAML script of replies (format: emulators/<vendor>_script.py)"
+    )
+    parser.add_argument("--plain", action="store_true", help="gemini: plain ws:// instead of TLS")
 
 
 async def _serve(host: str, port: int, script: Script) -> None:
@@ -38,6 +43,10 @@ async def _serve(host: str, port: int, script: Script) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.port is None:
+        args.port = DEFAULT_PORTS[args.vendor]
+    if args.vendor == "gemini":
+        return emulate_gemini.run(args)
     try:
         script = load_script(args.script) if args.script else Script()
     except (OSError, ScriptError) as error:

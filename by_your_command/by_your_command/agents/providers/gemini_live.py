@@ -1,0 +1,412 @@
+"""The Gemini Live session behind the `Provider` protocol, on the official google-genai SDK.
+
+Turns come from our own VAD: automatic activity detection is disabled, each user turn's audio is
+bracketed by activityStart / activityEnd, and no audio is sent outside them. 16 kHz PCM in, 24 kHz
+out (the rate rides on every AssistantAudio). `interrupt` sends activityStart: Gemini has no
+truncate, the server cuts its own history where it stopped generating.
+
+The socket is read by one task for the whole session (`session.receive()` ends at every
+turnComplete, so it runs in a `while True`): a resumption handle sent after a turnComplete is
+never lost (python-genai#2527). Handles go to a `ResumptionHandles` store shared by the providers
+of one agent; the next session resumes with the newest one when the runtime carries a
+conversation (non-empty history), and falls back to a fresh session plus text context when the
+server refuses the resume.
+
+Endpoint, API version and CA file come from config, else the SDK's own environment variables
+(GOOGLE_GEMINI_BASE_URL, GOOGLE_GENAI_API_VERSION, SSL_CERT_FILE); the key from the constructor
+or GEMINI_API_KEY / GOOGLE_API_KEY, and it is never logged. Works with google-genai 3.x
+(Python >= 3.11) and 2.33 (Python 3.10): only the API both have is used.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import ssl
+from collections.abc import AsyncIterator, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from google import genai
+from google.genai import errors, types
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+
+from by_your_command.agents.events import ProviderError, ProviderEvent
+from by_your_command.agents.provider import (
+    HistoryTurn,
+    ProviderClosed,
+    ProviderFailure,
+    Role,
+    SessionSetup,
+    ToolSpec,
+)
+from by_your_command.agents.providers.gemini_errors import (
+    MISSING_KEY_MESSAGE,
+    handshake_error,
+    session_closed,
+    setup_error,
+)
+from by_your_command.agents.providers.gemini_events import EventTranslator
+from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
+
+log = logging.getLogger(__name__)
+
+INPUT_RATE = 16_000  # Gemini Live's native input rate
+INPUT_MIME = f"audio/pcm;rate={INPUT_RATE}"
+DEFAULT_API_VERSION = "v1beta"  # the Live API's documented version (google-genai 3.x defaults to v1)
+MAX_IMAGE_BYTES = 7 * 1024 * 1024
+_END = object()  # end-of-events marker in the queue
+_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
+_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)  # websockets logs handshake headers (the key) at DEBUG
+_MEDIA_RESOLUTION = {
+    "low": types.MediaResolution.MEDIA_RESOLUTION_LOW,
+    "medium": types.MediaResolution.MEDIA_RESOLUTION_MEDIUM,
+    "high": types.MediaResolution.MEDIA_RESOLUTION_HIGH,
+}
+
+
+@dataclass(frozen=True)
+class GeminiLiveConfig:
+    model: str = "gemini-3.8-live"
+    voice: str = "Puck"  # a prebuilt voice name
+    language_code: str = ""  # speech language, e.g. "en-US"; "" = the model's choice
+    base_url: str = ""  # "" = GOOGLE_GEMINI_BASE_URL or Google's endpoint (always wss://)
+    api_version: str = ""  # "" = GOOGLE_GENAI_API_VERSION or v1beta
+    ca_file: str = ""  # a PEM CA to trust (a local emulator); "" = SSL_CERT_FILE or certifi
+    extra_headers: tuple[tuple[str, str], ...] = ()
+    # A text-only agent (SessionSetup.audio_out False): "transcription" asks for audio and uses its
+    # transcription as the text (gemini-3.8-live speaks only); "text" asks for TEXT replies.
+    text_replies: Literal["transcription", "text"] = "transcription"
+    media_resolution: Literal["", "low", "medium", "high"] = "low"  # tokens per camera frame
+    context_window_compression: bool = True  # sliding window: sessions beyond 15 min (2 with video)
+    resumption: bool = True
+    # Rotate before the server's hard close at ~58 min (1011 "Deadline expired", anchors §4).
+    max_session_s: float = 50 * 60.0
+    # websockets' 20 s ping timeout is shorter than Gemini's slowest pongs: a self-inflicted 1011.
+    ping_interval_s: float | None = 20.0
+    ping_timeout_s: float | None = 60.0  # None disables the check
+    max_message_bytes: int = 8 * 1024 * 1024  # one server message (bounded memory)
+    temperature: float | None = None
+    max_output_tokens: int | None = None
+    event_queue_size: int = 1024  # events the runtime has not read yet; the socket waits beyond it
+
+    def __post_init__(self) -> None:
+        if not self.model or not self.voice:
+            raise ValueError("model and voice must not be empty")
+        if self.text_replies not in ("transcription", "text"):
+            raise ValueError("text_replies must be 'transcription' or 'text'")
+        if self.media_resolution not in ("", *_MEDIA_RESOLUTION):
+            raise ValueError("media_resolution must be '', low, medium or high")
+        if not self.max_session_s > 0 or self.event_queue_size < 1 or self.max_message_bytes < 1024:
+            raise ValueError("max_session_s must be > 0, event_queue_size >= 1, max_message_bytes >= 1024")
+        for value in (self.ping_interval_s, self.ping_timeout_s):
+            if value is not None and not value > 0:
+                raise ValueError("ping_interval_s / ping_timeout_s must be > 0 or None")
+
+
+class GeminiLiveProvider:
+    """One Gemini Live connection (see agents/provider.py for the contract)."""
+
+    name = "gemini_live"
+    input_sample_rate = INPUT_RATE
+
+    def __init__(
+        self,
+        config: GeminiLiveConfig | None = None,
+        api_key: str | None = None,
+        resumption: ResumptionHandles | None = None,
+    ) -> None:
+        self.config = config or GeminiLiveConfig()
+        self.max_session_s = self.config.max_session_s
+        self._api_key = api_key
+        self._handles = resumption or ResumptionHandles()
+        self._stack = contextlib.AsyncExitStack()
+        self._session: Any = None  # genai.live.AsyncSession (typed Any: 2.33 and 3.x differ)
+        self._queue: asyncio.Queue[object] = asyncio.Queue(self.config.event_queue_size)
+        self._translator = EventTranslator(audio_out=True, text_from_transcription=False)
+        self._reader: asyncio.Task[None] | None = None
+        self._closed = False
+        self._in_activity = False  # between our activityStart and activityEnd
+        self._turn_audio_bytes = 0
+        self.resumed = False  # this connection continues an earlier one (the server kept history)
+
+    # ---- session ----------------------------------------------------------------------------
+    async def connect(self, setup: SessionSetup) -> None:
+        if self._session is not None or self._closed:
+            raise ProviderClosed("a provider is one session: build a new one to reconnect")
+        text_from_transcription = not setup.audio_out and self.config.text_replies == "transcription"
+        self._translator = EventTranslator(setup.audio_out, text_from_transcription)
+        client = self._client()
+        # Resume only a conversation the runtime carries on: an empty history is a new conversation.
+        handle = self._handles.usable() if self.config.resumption and setup.history else None
+        try:
+            await self._open(client, setup, handle)
+        except ProviderFailure as failure:
+            if failure.error.code != "resume_refused":
+                raise
+            log.info(
+                "Gemini refused the resumption (%s): starting fresh with text context", failure.error.message
+            )
+            self._handles.forget()
+            await self._open(client, setup, None)
+        self._reader = asyncio.ensure_future(self._read(self._session))
+
+    def _client(self) -> genai.Client:
+        config = self.config
+        client_args: dict[str, Any] = {
+            "ping_interval": config.ping_interval_s,
+            "ping_timeout": config.ping_timeout_s,
+            "max_size": config.max_message_bytes,
+            "logger": _QUIET_WEBSOCKET_LOG,
+        }
+        if config.ca_file:
+            try:
+                client_args["ssl"] = ssl.create_default_context(cafile=config.ca_file)
+            except (OSError, ssl.SSLError) as error:
+                raise ProviderFailure(
+                    ProviderError(
+                        "bad_ca_file", f"cannot read ca_file {config.ca_file!r}: {error}", fatal=True
+                    )
+                ) from None
+        options = types.HttpOptions(
+            base_url=config.base_url or None,
+            api_version=config.api_version
+            or os.environ.get("GOOGLE_GENAI_API_VERSION")
+            or DEFAULT_API_VERSION,
+            headers=dict(config.extra_headers) or None,
+            async_client_args=client_args,
+        )
+        try:
+            return genai.Client(api_key=self._api_key, http_options=options)
+        except ValueError:  # no key given and none in the environment
+            raise ProviderFailure(ProviderError("missing_api_key", MISSING_KEY_MESSAGE, fatal=True)) from None
+
+    async def _open(self, client: genai.Client, setup: SessionSetup, handle: str | None) -> None:
+        manager = client.aio.live.connect(model=self.config.model, config=self._live_config(setup, handle))
+        try:
+            self._session = await self._stack.enter_async_context(manager)
+        except errors.APIError as refused:
+            reason = str(refused.message or refused.details or "")
+            error = setup_error(refused.code, reason, self.config.model, resuming=handle is not None)
+            if error is not None:
+                raise ProviderFailure(error) from None
+            raise ProviderClosed(
+                f"Gemini closed the connection during setup ({refused.code} {reason})"
+            ) from None
+        except InvalidStatus as refused:
+            error = handshake_error(refused.response.status_code)
+            if error.fatal or error.retry_after_s is not None:
+                raise ProviderFailure(error) from None
+            raise ProviderClosed(error.message) from None
+        except ssl.SSLCertVerificationError as error:
+            raise ProviderFailure(
+                ProviderError(
+                    "tls_untrusted",
+                    f"the Gemini endpoint's certificate is not trusted ({error.verify_message}): set ca_file",
+                    fatal=True,
+                )
+            ) from None
+        self.resumed = handle is not None
+        if not self.resumed and setup.history:
+            async with self._closing_on_failure():
+                await self._session.send_client_content(turns=_history(setup.history), turn_complete=False)
+
+    def _live_config(self, setup: SessionSetup, handle: str | None) -> types.LiveConnectConfig:
+        config = self.config
+        text_modality = not setup.audio_out and config.text_replies == "text"
+        speech = None
+        if not text_modality:
+            speech = types.SpeechConfig(
+                voice_config=types.VoiceConfig(
+                    prebuilt_voice_config=types.PrebuiltVoiceConfig(voice_name=config.voice)
+                ),
+                language_code=config.language_code or None,
+            )
+        return types.LiveConnectConfig(
+            response_modalities=[types.Modality.TEXT if text_modality else types.Modality.AUDIO],
+            speech_config=speech,
+            system_instruction=setup.instructions or None,
+            tools=_tools(setup.tools) or None,
+            realtime_input_config=types.RealtimeInputConfig(
+                automatic_activity_detection=types.AutomaticActivityDetection(disabled=True),
+                activity_handling=types.ActivityHandling.START_OF_ACTIVITY_INTERRUPTS,
+            ),
+            input_audio_transcription=types.AudioTranscriptionConfig(),
+            output_audio_transcription=None if text_modality else types.AudioTranscriptionConfig(),
+            session_resumption=types.SessionResumptionConfig(handle=handle) if config.resumption else None,
+            context_window_compression=types.ContextWindowCompressionConfig(
+                sliding_window=types.SlidingWindow()
+            )
+            if config.context_window_compression
+            else None,
+            media_resolution=_MEDIA_RESOLUTION.get(config.media_resolution),
+            temperature=config.temperature,
+            max_output_tokens=config.max_output_tokens,
+        )
+
+    async def close(self) -> None:
+        self._closed = True
+        if self._reader is not None:
+            self._reader.cancel()  # it may wait for room in a full queue nobody reads any more
+            await asyncio.gather(self._reader, return_exceptions=True)
+        else:
+            self._end_events()
+        self._session = None
+        with contextlib.suppress(Exception):
+            await self._stack.aclose()  # closes the socket (before any resume: sip-to-ai#14)
+
+    # ---- input ------------------------------------------------------------------------------
+    def _live(self) -> Any:
+        if self._closed or self._session is None:
+            raise ProviderClosed("the Gemini Live session is closed")
+        return self._session
+
+    async def _start_activity(self) -> None:
+        if not self._in_activity:
+            async with self._closing_on_failure():
+                await self._live().send_realtime_input(activity_start=types.ActivityStart())
+            self._in_activity = True
+            self._turn_audio_bytes = 0
+
+    async def send_audio(self, pcm: bytes) -> None:
+        if len(pcm) % 2:
+            raise ValueError(f"PCM16 needs whole samples: {len(pcm)} bytes is odd")
+        if not pcm:
+            return
+        session = self._live()
+        await self._start_activity()  # never audio outside an activity: our VAD owns the turns
+        async with self._closing_on_failure():
+            await session.send_realtime_input(audio=types.Blob(data=pcm, mime_type=INPUT_MIME))
+        self._turn_audio_bytes += len(pcm)
+
+    async def end_of_turn(self) -> None:
+        session = self._live()
+        if not self._in_activity or not self._turn_audio_bytes:
+            await self._queue.put(ProviderError("empty_turn", "utterance without audio not sent"))
+            return
+        async with self._closing_on_failure():
+            await session.send_realtime_input(activity_end=types.ActivityEnd())
+        self._in_activity = False
+
+    async def send_text(self, text: str) -> None:
+        session = self._live()
+        turn = types.Content(role="user", parts=[types.Part(text=text)])
+        async with self._closing_on_failure():
+            await session.send_client_content(turns=turn, turn_complete=True)
+
+    async def send_image(self, jpeg: bytes) -> None:
+        """One camera frame as realtime video, sent once (the runtime gives each frame once)."""
+        if not jpeg.startswith(b"\xff\xd8") or len(jpeg) > MAX_IMAGE_BYTES:
+            raise ValueError(f"not a JPEG of at most {MAX_IMAGE_BYTES} bytes ({len(jpeg)} bytes)")
+        session = self._live()
+        async with self._closing_on_failure():
+            await session.send_realtime_input(video=types.Blob(data=jpeg, mime_type="image/jpeg"))
+
+    async def send_tool_result(self, call_id: str, output: str) -> None:
+        session = self._live()
+        if call_id in self._translator.cancelled_calls:
+            log.info("tool call %s was cancelled by the server: result dropped", call_id)
+            return
+        try:
+            parsed = json.loads(output)
+        except ValueError:
+            parsed = None
+        result = parsed if isinstance(parsed, dict) else {"output": output}
+        response = types.FunctionResponse(
+            id=call_id, name=self._translator.call_name(call_id) or "", response=result
+        )
+        async with self._closing_on_failure():
+            await session.send_tool_response(function_responses=[response])
+
+    async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
+        """activityStart: the server stops generating and keeps what it sent in its history (there
+        is no truncate). `played_ms` cannot be applied; the user's next audio follows in the same
+        activity."""
+        self._live()
+        cut = response_id or self._translator.active_response
+        if cut:
+            self._translator.mark_cut(cut)
+        if self._in_activity:  # an unfinished turn cannot be cut by another activityStart
+            return
+        await self._start_activity()
+
+    @contextlib.asynccontextmanager
+    async def _closing_on_failure(self) -> AsyncIterator[None]:
+        try:
+            yield
+        except ConnectionClosed as closed:
+            raise ProviderClosed(f"the Gemini Live session closed: {closed}") from None
+
+    # ---- output -----------------------------------------------------------------------------
+    async def events(self) -> AsyncIterator[ProviderEvent]:
+        while True:
+            event = await self._queue.get()
+            if event is _END:
+                self._queue.put_nowait(_END)  # later readers end too
+                return
+            yield event  # type: ignore[misc]  # the queue holds ProviderEvents and _END only
+
+    async def _read(self, session: Any) -> None:
+        try:
+            while True:  # receive() ends at every turnComplete: keep reading the socket
+                try:
+                    async for message in session.receive():
+                        await self._on_message(message)
+                except ValueError as error:  # an unreadable message: report, keep the session
+                    await self._queue.put(
+                        ProviderError("invalid_server_message", f"unreadable message: {error}")
+                    )
+        except errors.APIError as closed:
+            reason = str(closed.message or closed.details or "")
+            report = session_closed(closed.code, reason)
+            if report is not None:
+                log.info("Gemini closed the session: %s %s", closed.code, reason)
+                self._put_last(report)
+        except ConnectionClosed:
+            self._put_last(ProviderError("server_closed", "the Gemini connection was lost"))
+        finally:
+            self._closed = True
+            for event in self._translator.connection_lost():
+                self._put_last(event)
+            self._end_events()
+
+    async def _on_message(self, message: types.LiveServerMessage) -> None:
+        update = message.session_resumption_update
+        if update is not None and update.resumable and update.new_handle:
+            self._handles.keep(update.new_handle)
+        for event in self._translator.translate(message):
+            await self._queue.put(event)
+
+    def _put_last(self, event: object) -> None:
+        """Queue without waiting (the session is over): drop the oldest unread event if full."""
+        if self._queue.full():
+            self._queue.get_nowait()
+        self._queue.put_nowait(event)
+
+    def _end_events(self) -> None:
+        self._put_last(_END)
+
+
+def _history(history: Sequence[HistoryTurn]) -> list[types.Content]:
+    return [
+        types.Content(role="user" if turn.role is Role.USER else "model", parts=[types.Part(text=turn.text)])
+        for turn in history
+    ]
+
+
+def _tools(tools: Sequence[ToolSpec]) -> types.ToolListUnion:
+    if not tools:
+        return []
+    declarations = [
+        types.FunctionDeclaration(
+            name=tool.name,
+            description=tool.description,
+            parameters_json_schema=tool.parameters,
+            behavior=types.Behavior.BLOCKING,  # the model waits for the robot's verdict
+        )
+        for tool in tools
+    ]
+    return [types.Tool(function_declarations=declarations)]
