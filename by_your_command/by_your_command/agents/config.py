@@ -72,7 +72,7 @@ class AgentConfig:
     min_barge_in_ms: int = 400  # user speech shorter than this is not a barge-in (cough, knock)
     barge_in_window_s: float = 1.5  # onset without that much speech within this window: resume
     # session cycling
-    pause_timeout_s: float = 10.0
+    pause_timeout_s: float = 2.0  # bench_billing: each exchange bills about this much extra
     max_session_s: float = 3600.0  # also capped by the provider's own limit
     rotation_margin_s: float = 120.0  # rotate this long before the limit, at a turn boundary
     connect_timeout_s: float = 10.0

@@ -136,6 +136,11 @@ class OpenAIRealtimeEmulator:
         )
         self.host, self.port = host, int(self._server.sockets[0].getsockname()[1])
 
+    @property
+    def open_connections(self) -> int:
+        """Client connections open right now (a closed session is gone from here)."""
+        return len(self._connections)
+
     async def stop(self) -> None:
         if self._server is not None:
             self._server.close()

@@ -44,7 +44,7 @@ class GraphOptions:
     model: str = _option("", "the (conversation) agent's model; empty = its config file's")
     cmd_model: str = _option("", "dual profiles: the command agent's model; empty = its config file's")
     voice: str = _option("", "the speaking agent's voice; empty = its config file's")
-    pause_timeout: float = _option(10.0, "seconds of quiet before a cloud session is closed (cost)")
+    pause_timeout: float = _option(2.0, "seconds of quiet before a cloud session is closed (cost)")
     agent_config_dir: str = _option("", "empty = the installed config/; else agent configs come from here")
     # node name -> parameter -> value, applied over the config files (`--set node.param=value`)
     parameters: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)

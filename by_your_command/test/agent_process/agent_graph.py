@@ -88,6 +88,9 @@ class EmulatorThread:
     def connections(self) -> int:
         return self._read(lambda: len(self.handle.handshakes))
 
+    def open_connections(self) -> int:
+        return self._read(lambda: self.handle.open_connections)
+
     def appended_ms(self) -> float:
         """Milliseconds of 24 kHz PCM the client appended to the input buffer."""
         total = sum(len(base64.b64decode(e["audio"])) for e in self.events("input_audio_buffer.append"))

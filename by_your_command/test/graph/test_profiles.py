@@ -188,7 +188,7 @@ def test_launch_arguments_follow_the_profile() -> None:
     voice = {a.name: a.default for a in launch_arguments("byc")}
     assert voice["enable_voice_recorder"] == "true" and "model" not in voice and "audio_sink" not in voice
     dual = {a.name: a.default for a in launch_arguments("gemini_dual_agent")}
-    assert dual["pause_timeout"] == "30.0" and dual["provider"] == "gemini" and dual["cmd_model"] == ""
+    assert dual["pause_timeout"] == "2.0" and dual["provider"] == "gemini" and dual["cmd_model"] == ""
     assert "cmd_model" not in {a.name for a in launch_arguments("oai_realtime")}
     for name in ("namespace", "prefix", "enable_voice_recorder", "save_mic", "echo_mode", "voice", "model"):
         assert name in dual

@@ -1,0 +1,156 @@
+"""Own pipeline latency of a voice turn (issue 9; goal <= 30 ms p95): the end of the user's speech
+(the VAD's end-marker chunk published on prompt_voice) → the first reply audio at the player
+(its playback_status reporting the new stream speaking; also the first `audio_played` block).
+
+Real processes: ros_ai_bridge, simple_audio_player (real-time WAV sink), `byc agent` (OpenAI
+provider, official SDK) → the OpenAI emulator answering at once (pace 0) on a thread here. The bench
+node stands in for the VAD: 3 chunks of 100 ms every 100 ms, then the end-marker chunk. Includes
+the model's stand-in: commit → transcription → response events on the emulator (a few ms).
+
+Baselines in the same run: one raw DDS publish→subscribe of the same chunk, one raw WebSocket round
+trip of it. The turn crosses 3 DDS hops (bench→bridge, bridge→player, player→bench) and 2 WebSocket
+round trips (bridge⇄agent, agent⇄emulator), so `floor` = 3 x DDS p50 + 2 x WebSocket p50.
+
+    scripts/run.sh python bench/bench_agent_latency.py [--turns N]   # LOCALHOST discovery
+    unshare -n bash -c 'ip link set lo up; scripts/run.sh python bench/bench_agent_latency.py'
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _agent_bench import (  # noqa: E402
+    CHUNK_MS,
+    VAD_RATE,
+    Stamped,
+    agent_graph,
+    dds_one_way_ms,
+    percentile,
+    summary,
+    table,
+    wait_until,
+    websocket_round_trip_ms,
+)
+
+from by_your_command.emulators.openai_script import Say, Script  # noqa: E402
+
+WARMUP_TURNS = 2
+GOAL_P95_MS = 30.0
+
+
+def speech_like(seconds: float, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(seconds * VAD_RATE)) / VAD_RATE
+    voice = 4000 * np.sin(2 * np.pi * 180 * t) * (1 + 0.5 * np.sin(2 * np.pi * 3 * t))
+    return (voice + rng.normal(0, 300, len(t))).astype(np.int16)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--turns", type=int, default=20)
+    args = parser.parse_args()
+    chunk = VAD_RATE * CHUNK_MS // 1000
+    to_status: list[float] = []
+    to_played: list[float] = []
+    agent_first_audio: list[float] = []
+    script = Script(default_reply=Say("Okay."), pace=0.0, ms_per_char=40)
+    with agent_graph(script, "latency") as graph:
+        bench = graph.bench
+        known: set[str] = set()
+        for turn in range(WARMUP_TURNS + args.turns):
+            pcm = speech_like(0.4, turn)
+            utterance = bench.new_utterance()
+            bench.say_activity(True)
+            pieces = [pcm[k : k + chunk] for k in range(0, len(pcm), chunk)]
+            for sequence, piece in enumerate(pieces[:-1]):
+                bench.voice.publish(bench.chunk(piece, utterance, sequence, False))
+                time.sleep(CHUNK_MS / 1000)  # paced like the VAD
+            last = bench.chunk(pieces[-1], utterance, len(pieces) - 1, True)
+            played_before = len(bench.played)
+            metrics_before = len(bench.metrics)
+            ended = time.monotonic()
+            bench.voice.publish(last)
+            bench.say_activity(False)
+
+            def first_status() -> Stamped | None:
+                graph.check()
+                return bench.new_stream(known)
+
+            status = wait_until(first_status, 30, f"turn {turn}: the reply at the player")
+            stream_id = status.msg.stream_id
+            known.add(stream_id)
+
+            def first_played(before: int = played_before, stream: str = stream_id) -> Stamped | None:
+                return next((p for p in list(bench.played)[before:] if p.msg.stream_id == stream), None)
+
+            def finished(stream: str = stream_id) -> bool:
+                return any(s.msg.finished for s in bench.statuses_of(stream))
+
+            def turn_record(before: int = metrics_before) -> dict[str, Any] | None:
+                records = [json.loads(m.msg.data) for m in list(bench.metrics)[before:]]
+                return next((r for r in records if r["record"] == "turn"), None)
+
+            played = wait_until(first_played, 30, "the first played block")
+            wait_until(finished, 30, "the reply played")
+            record = wait_until(turn_record, 30, "the turn's metrics")
+            if turn >= WARMUP_TURNS:
+                to_status.append(1000 * (status.at - ended))
+                to_played.append(1000 * (played.at - ended))
+                if record["first_audio_ms"] is not None:
+                    agent_first_audio.append(float(record["first_audio_ms"]))
+        commits = graph.emulator.received_types().count("input_audio_buffer.commit")
+    assert commits == WARMUP_TURNS + args.turns, f"{commits} commits for {WARMUP_TURNS + args.turns} turns"
+
+    dds = dds_one_way_ms(args.turns * 2, speech_like(CHUNK_MS / 1000, 99))
+    ws = websocket_round_trip_ms(args.turns * 2, speech_like(CHUNK_MS / 1000, 99))
+    floor = 3 * percentile(dds, 50) + 2 * percentile(ws, 50)
+    p95 = percentile(to_status, 95)
+    figures = {
+        "end_marker_to_speaking_status_ms": to_status,
+        "end_marker_to_first_audio_played_ms": to_played,
+        "agent_end_marker_to_first_audio_published_ms": agent_first_audio,
+        "baseline_dds_publish_to_subscribe_ms": dds,
+        "baseline_websocket_round_trip_ms": ws,
+    }
+    for name, values in figures.items():
+        print(json.dumps({"bench": "agent_latency", "figure": name, **summary(values)}))
+    print(
+        json.dumps(
+            {
+                "bench": "agent_latency",
+                "figure": "pipeline_vs_transport_floor",
+                "p50_ratio_vs_floor": round(percentile(to_status, 50) / floor, 2),
+                "floor_ms": round(floor, 2),
+                "goal_p95_ms": GOAL_P95_MS,
+                "meets_goal": p95 <= GOAL_P95_MS,
+            }
+        )
+    )
+    table(
+        [
+            ("end marker -> speaking status (the figure)", to_status, f"goal p95 <= {GOAL_P95_MS:g} ms"),
+            ("end marker -> first audio_played block", to_played, ""),
+            ("  in the agent: end marker -> audio published", agent_first_audio, "agent's TurnMetrics"),
+            ("baseline: DDS publish -> subscribe", dds, "one hop"),
+            ("baseline: WebSocket round trip", ws, "one round trip"),
+            (
+                "transport floor (3 DDS + 2 WS)",
+                [floor],
+                f"pipeline p50 = {percentile(to_status, 50) / floor:.1f}x",
+            ),
+        ]
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
