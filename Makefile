@@ -11,8 +11,10 @@ all: test
 bootstrap:
 	@scripts/bootstrap.sh
 
+# make demo PROVIDER=openai|gemini: the cloud agent (needs OPENAI_API_KEY / GEMINI_API_KEY)
+PROVIDER ?= offline
 demo: bootstrap
-	@$(RUN) byc demo
+	@$(RUN) byc demo --provider $(PROVIDER)
 
 test: bootstrap lint
 	@scripts/run_tests.sh

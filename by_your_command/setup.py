@@ -63,7 +63,11 @@ setup(
     # config/ is also the Python package's `config` folder (package data): one copy in git.
     packages=[*find_packages(exclude=["test", "test.*"]), f"{PACKAGE}.config"],
     package_dir={f"{PACKAGE}.config": "config"},
-    package_data={PACKAGE: ["py.typed"], f"{PACKAGE}.config": ["*.yaml"]},
+    package_data={
+        PACKAGE: ["py.typed"],
+        f"{PACKAGE}.config": ["*.yaml"],
+        f"{PACKAGE}.demo": ["*.wav", "*.sh"],  # the bundled demo speech and the script that makes it
+    },
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

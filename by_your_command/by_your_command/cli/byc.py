@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from by_your_command import __version__
-from by_your_command.cli import agent, emulate, expand_prompt, up
+from by_your_command.cli import agent, demo, emulate, expand_prompt, up
 
 
 @dataclass(frozen=True)
@@ -70,15 +70,6 @@ def cmd_doctor(_: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_demo(_: argparse.Namespace) -> int:
-    print(
-        "byc demo: not implemented yet.\n"
-        "The offline voice demo lands with the demo issue; until then `make test` shows what works.",
-        file=sys.stderr,
-    )
-    return 2
-
-
 @dataclass(frozen=True)
 class Subcommand:
     help: str
@@ -88,7 +79,11 @@ class Subcommand:
 
 SUBCOMMANDS: dict[str, Subcommand] = {
     "doctor": Subcommand("check that this machine can run by_your_command", cmd_doctor),
-    "demo": Subcommand("run the offline voice demo", cmd_demo),
+    "demo": Subcommand(
+        "run the voice demo through the real graph (offline by default) with a live transcript",
+        demo.run,
+        demo.add_arguments,
+    ),
     "prompt": Subcommand(
         "list prompts and macros, or print one expanded exactly as agents get it",
         expand_prompt.run,

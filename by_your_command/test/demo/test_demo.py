@@ -1,0 +1,192 @@
+"""`byc demo` as a user runs it: a process, the real graph, the offline agent, its output checked."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import wave
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from byc_testing import running_process, wait_for
+
+from by_your_command.demo import bundled_speech
+
+# A transcript line: "[   12.3 s] command    lookup -> arm_preset: accepted"
+_LINE = re.compile(r"^\[\s*(\d+\.\d) s\] (\S+)\s+(.*)$")
+_ACCEPTED = re.compile(r"^(\S+) -> (\S+): accepted$")
+# What the bundled file says while awake, and where the command processor routes it.
+EXPECTED_ROUTES = {"lookup": "arm_preset", "pan@left": "arm_preset", "stop": "behavior_command"}
+SPOKEN_WHILE_ASLEEP = ("turn@right", "turn right")
+_LISTENING = re.compile(r"listening on ws://(127\.0\.0\.1:\d+)/")
+RUN_TIMEOUT_S = 150  # the demo's own deadline is the file (27 s) + 60 s; this only stops a hang
+
+
+@dataclass
+class DemoRun:
+    status: int
+    out: str
+    err: str
+    out_dir: Path
+
+    def events(self) -> list[tuple[str, str]]:
+        return [(m[2], m[3]) for line in self.out.splitlines() if (m := _LINE.match(line))]
+
+    def accepted(self) -> dict[str, str]:
+        return {
+            m[1]: m[2]
+            for kind, detail in self.events()
+            if kind == "command" and (m := _ACCEPTED.match(detail))
+        }
+
+    def explain(self) -> str:
+        return f"exit {self.status}\n--- stdout\n{self.out}\n--- stderr\n{self.err}"
+
+
+def run_demo(*args: str, env: dict[str, str] | None = None, out_dir: Path) -> DemoRun:
+    argv = [sys.executable, "-m", "by_your_command.cli.byc", "demo", "--out", str(out_dir), *args]
+    done = subprocess.run(
+        argv, capture_output=True, text=True, timeout=RUN_TIMEOUT_S, env=env or dict(os.environ)
+    )
+    return DemoRun(done.returncode, done.stdout, done.stderr, out_dir)
+
+
+def audible_seconds(path: Path) -> float:
+    """Seconds of 20 ms blocks louder than -40 dBFS (speech, not silence or a noise floor)."""
+    with wave.open(str(path), "rb") as wav:
+        rate = wav.getframerate()
+        pcm = np.frombuffer(wav.readframes(wav.getnframes()), dtype="<i2").astype(np.float64)
+    block = rate // 50
+    blocks = pcm[: len(pcm) // block * block].reshape(-1, block)
+    rms = np.sqrt((blocks**2).mean(axis=1)) if len(blocks) else np.zeros(0)
+    return float((rms > 32768 * 0.01).sum()) / 50
+
+
+@pytest.mark.e2e
+def test_offline_demo_routes_the_spoken_commands_and_ignores_the_one_said_asleep(
+    ros_namespace: str, tmp_path: Path
+) -> None:
+    run = run_demo("--namespace", ros_namespace.strip("/"), out_dir=tmp_path)
+    assert run.status == 0, run.explain()
+    accepted = run.accepted()
+    for command, topic in EXPECTED_ROUTES.items():
+        assert accepted.get(command) == topic, f"{command} not routed to {topic}\n{run.explain()}"
+    commands = [detail for kind, detail in run.events() if kind == "command"]
+    assert not [c for c in commands if any(word in c for word in SPOKEN_WHILE_ASLEEP)], run.explain()
+    # The robot fell asleep and woke again, and nothing was routed in between.
+    attention = [detail for kind, detail in run.events() if kind == "attention"]
+    assert "asleep" in attention and "awake" in attention[attention.index("asleep") :], run.explain()
+    asleep = False
+    for kind, detail in run.events():
+        if kind == "attention":
+            asleep = detail == "asleep"
+        elif kind == "command" and asleep:
+            assert not _ACCEPTED.match(detail), f"routed while asleep: {detail}\n{run.explain()}"
+    # The robot answered out loud: more speech than a few short acknowledgements.
+    heard = [detail for kind, detail in run.events() if kind == "heard"]
+    assert len(heard) >= 5, run.explain()
+    assert any(kind == "latency" for kind, _ in run.events()), run.explain()
+    reply_wav = tmp_path / "robot_said.wav"
+    assert audible_seconds(reply_wav) > 2.5, run.explain()
+    assert f"robot's voice     {reply_wav}" in run.out
+    assert re.search(r"commands routed\s+[3-9]", run.out), run.explain()
+    assert "done: the speech file was played and every reply finished" in run.out
+
+
+# The cloud path, served by the OpenAI Realtime emulator (scripted replies, no spending): one scripted
+# turn per utterance the agent receives, each with what it "heard".
+EMULATOR_SCRIPT = {
+    "pace": 1.0,
+    "default_reply": {"say": "I did not catch that."},
+    "turns": [
+        {
+            "heard": "look up",
+            "tool": {"name": "robot_command", "arguments": {"command": "lookup"}},
+            "then": {"say": "Looking up."},
+        },  # fmt: skip
+        {
+            "heard": "pan left",
+            "tool": {"name": "robot_command", "arguments": {"command": "pan@left"}},
+            "then": {"say": "Panning left."},
+        },  # fmt: skip
+        {"heard": "what time is it", "say": "It is half past eleven."},
+        {
+            "heard": "go to sleep",
+            "tool": {"name": "robot_command", "arguments": {"command": "sleep"}},
+            "then": {"say": "Good night."},
+        },  # fmt: skip
+    ],
+}
+
+
+@pytest.mark.e2e
+def test_the_cloud_demo_narrates_the_graph_with_an_emulated_provider(
+    ros_namespace: str, tmp_path: Path
+) -> None:
+    script = tmp_path / "script.yaml"
+    script.write_text(yaml.safe_dump(EMULATOR_SCRIPT))
+    emulate = [sys.executable, "-m", "by_your_command.cli.byc", "emulate", "openai", "--port", "0"]
+    with running_process([*emulate, "--script", str(script)]) as emulator:
+        assert emulator.stdout is not None
+        url = wait_for(lambda: _LISTENING.search(emulator.stdout.readline() if emulator.stdout else ""), 30)
+        env = {**os.environ, "OPENAI_API_KEY": "sk-emulator", "OPENAI_BASE_URL": f"http://{url[1]}/v1"}
+        out_dir = tmp_path / "out"
+        # --input: the file, also where a microphone and a speaker exist
+        namespace = ros_namespace.strip("/")
+        args = ("--provider", "openai", "--input", str(bundled_speech()), "--namespace", namespace)
+        run = run_demo(*args, env=env, out_dir=out_dir)
+    assert run.status == 0, run.explain()
+    assert "an OpenAI Realtime agent" in run.out  # no sound card here: the bundled file, a WAV
+    accepted = run.accepted()
+    assert accepted == {"lookup": "arm_preset", "pan@left": "arm_preset", "sleep": "behavior_command"}, (
+        run.explain()
+    )
+    events = run.events()
+    assert ("heard", '"what time is it"') in events and ("robot", '"It is half past eleven."') in events
+    assert [kind for kind, _ in events].count("latency") == 4, run.explain()
+    attention = [detail for kind, detail in events if kind == "attention"]
+    assert attention[attention.index("asleep") - 1 :][:2] == ["awake", "asleep"], run.explain()
+    assert audible_seconds(out_dir / "robot_said.wav") > 2.0, run.explain()
+
+
+@pytest.mark.e2e
+def test_a_node_that_dies_fails_the_demo_and_is_named(ros_namespace: str, tmp_path: Path) -> None:
+    broken = tmp_path / "broken.wav"
+    broken.write_bytes(b"RIFF but not a wave file")
+    run = run_demo("--namespace", ros_namespace.strip("/"), "--input", str(broken), out_dir=tmp_path)
+    assert run.status == 1, run.explain()
+    assert "FAILED: the graph failed: file_audio_publisher (exit status 1)" in run.err, run.explain()
+    assert (tmp_path / "graph.log").read_text().count("[file_audio_publisher]") > 0
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("provider", "variables"),
+    [("openai", ("OPENAI_API_KEY",)), ("gemini", ("GEMINI_API_KEY", "GOOGLE_API_KEY"))],
+)
+def test_a_cloud_demo_without_its_key_says_what_is_missing_and_exits_2(
+    provider: str, variables: tuple[str, ...], tmp_path: Path
+) -> None:
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("OPENAI_API_KEY", "GEMINI_API_KEY", "GOOGLE_API_KEY")
+    }
+    run = run_demo("--provider", provider, env=env, out_dir=tmp_path)
+    assert run.status == 2, run.explain()
+    assert f"--provider {provider} needs an API key: set {' or '.join(variables)}" in run.err
+    assert not list(tmp_path.iterdir()), "nothing may start without the key"
+
+
+@pytest.mark.unit
+def test_the_bundled_speech_ships_with_the_package() -> None:
+    path = bundled_speech()
+    with wave.open(str(path), "rb") as wav:
+        assert (wav.getframerate(), wav.getnchannels(), wav.getsampwidth()) == (16000, 1, 2)
+        seconds = wav.getnframes() / wav.getframerate()
+    assert 20 <= seconds <= 30
+    assert path.stat().st_size < 1_500_000
+    assert path.parent.name == "demo" and (path.parent / "make_demo_speech.sh").is_file()
