@@ -1,8 +1,8 @@
 """Provider kinds by name: validate a config's `provider` section and build the session factory.
 
-`openai` is here now; `offline` and `gemini` join PROVIDER_KINDS when they exist. The API key is
-read from the environment once, at start (a missing key is a config error, not a failure at the
-first utterance), and handed to the provider object; it is never put in a message.
+`openai`, `gemini` and `offline` (no key). The API key is read from the environment once, at
+start (a missing key is a config error, not a failure at the first utterance), and handed to the
+provider object; it is never put in a message.
 """
 
 from __future__ import annotations
@@ -81,8 +81,57 @@ def _build_openai(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     return BuiltProvider(factory, values, key)
 
 
+# --- offline -----------------------------------------------------------------------------------
+
+
+def _build_offline(settings: Mapping[str, Any], key: str) -> BuiltProvider:
+    # Imported here: pocketsphinx is only needed by agents that use it.
+    try:
+        from by_your_command.agents.providers.offline import OfflineProvider
+        from by_your_command.agents.providers.offline_config import OfflineConfig
+        from by_your_command.agents.providers.offline_engine import LocalEngine
+    except ImportError as missing:
+        raise AgentConfigError([f"provider.type: offline needs {missing.name or missing}"]) from None
+
+    config = typed_settings(OfflineConfig, settings, "provider")
+    engine = LocalEngine(config)  # loaded by the first session, then shared by every later one
+
+    def factory() -> OfflineProvider:
+        return OfflineProvider(config, engine)
+
+    values = dataclasses.asdict(config)
+    values["acknowledgements"] = dict(config.acknowledgements)
+    return BuiltProvider(factory, values, "")
+
+
+# --- gemini ------------------------------------------------------------------------------------
+
+
+def _build_gemini(settings: Mapping[str, Any], key: str) -> BuiltProvider:
+    # Imported here: google-genai is only needed by agents that use it.
+    from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
+    from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
+
+    config = typed_settings(GeminiLiveConfig, settings, "provider")
+    bad_headers = sorted(name for name, _ in config.extra_headers if name.lower() in _SECRET_HEADERS)
+    if bad_headers:
+        raise AgentConfigError(
+            [f"provider.extra_headers.{bad_headers[0]}: credentials come from the environment, not files"]
+        )
+    handles = ResumptionHandles()  # one per agent: every session of this agent resumes the last one
+
+    def factory() -> GeminiLiveProvider:
+        return GeminiLiveProvider(config, api_key=key, resumption=handles)
+
+    values = dataclasses.asdict(config)
+    values["extra_headers"] = dict(config.extra_headers)
+    return BuiltProvider(factory, values, key)
+
+
 PROVIDER_KINDS: dict[str, ProviderKind] = {
     "openai": ProviderKind("OPENAI_API_KEY", _build_openai),
+    "gemini": ProviderKind("GEMINI_API_KEY", _build_gemini),
+    "offline": ProviderKind("", _build_offline),
 }
 
 

@@ -60,7 +60,7 @@ def checked(capsys: pytest.CaptureFixture[str], *argv: str) -> dict[str, Any]:
         ({"role": "talker"}, "role: must be one of"),
         ({"provider": {"model": 5}}, "provider.model: must be str, got int 5"),
         ({"provider": {"noise_reduction": "loud"}}, "provider.noise_reduction: must be one of"),
-        ({"provider": {"type": "telepathy"}}, "provider.type: must be one of ['openai']"),
+        ({"provider": {"type": "telepathy"}}, "provider.type: must be one of ['gemini', 'offline', 'openai']"),
         ({"provider": "gpt"}, "provider: must be a mapping"),
         ({"prompt_id": "no_such_prompt"}, "prompt_id: no prompt 'no_such_prompt'"),
         ({"bridge": {"url": "http://robot:9090"}}, "bridge.url: must be ws://host:port"),
@@ -210,7 +210,7 @@ def test_check_prints_the_effective_config_without_secrets(
     effective = yaml.safe_load(out.split("\n", 1)[1])
     assert effective["bridge"] == {"url": "ws://127.0.0.1:9090", "token_env": "BYC_BRIDGE_TOKEN (set)"}
     assert effective["provider"]["model"] == "gpt-realtime-2.1"
-    assert effective["pause_timeout_s"] == 10.0 and effective["echo_mode"] == "gate"
+    assert effective["pause_timeout_s"] == 2.0 and effective["echo_mode"] == "gate"
     assert "characters" in effective["instructions"]
 
 

@@ -1,0 +1,73 @@
+"""The offline speech engine as the offline provider uses it: load once, recognize, understand
+typed text, say.
+
+`LocalEngine` wraps the library in by_your_command/offline/ (pocketsphinx + espeak-ng). Loading
+takes seconds (the acoustic model and the search), so it happens off the event loop, when the first
+session connects, and the factory shares the loaded engine with every later session: a new session
+costs nothing. Its methods block and are called from threads; a timed-out call may still run when
+the next one starts, so each part is serialised (the recognizer has its own lock, the speaker gets
+one here).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Protocol, TypeVar
+
+from by_your_command.agents.providers.offline_config import OfflineConfig
+from by_your_command.agents.providers.offline_text import TextMatcher
+from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, RecognizerConfig
+from by_your_command.offline.speaker import Speaker
+
+T = TypeVar("T")
+
+
+class Engine(Protocol):
+    def load(self) -> None:
+        """Blocking, idempotent; raises ImportError/OSError/ValueError when it cannot work."""
+
+    def recognize(self, pcm: bytes, sample_rate: int) -> Recognition: ...
+
+    def understand(self, text: str) -> Recognition: ...
+
+    def say(self, text: str) -> tuple[bytes, int]:
+        """Mono PCM16 LE and its sample rate; ValueError (nothing to say) or RuntimeError (espeak-ng
+        failed) otherwise."""
+
+
+class LocalEngine:
+    def __init__(self, config: OfflineConfig) -> None:
+        self._config = config
+        self._load_lock = threading.Lock()
+        self._speak_lock = threading.Lock()
+        self._recognizer: OfflineRecognizer | None = None
+        self._speaker: Speaker | None = None
+        self._matcher: TextMatcher | None = None
+
+    def load(self) -> None:
+        with self._load_lock:
+            if self._matcher is not None:
+                return
+            config = self._config
+            recognizer = OfflineRecognizer(RecognizerConfig(commands_file=config.commands_file))
+            self._speaker = Speaker(config.speaker())
+            self._recognizer = recognizer
+            # Typed text means what the same words mean spoken: the recognizer's vocabulary and forms.
+            self._matcher = TextMatcher(recognizer.vocabulary, recognizer.config.spoken)
+
+    def recognize(self, pcm: bytes, sample_rate: int) -> Recognition:
+        return self._loaded(self._recognizer).recognize(pcm, sample_rate)  # never raises on bad audio
+
+    def understand(self, text: str) -> Recognition:
+        return self._loaded(self._matcher).understand(text)
+
+    def say(self, text: str) -> tuple[bytes, int]:
+        speaker = self._loaded(self._speaker)
+        with self._speak_lock:
+            return speaker.say(text)
+
+    @staticmethod
+    def _loaded(part: T | None) -> T:
+        if part is None:
+            raise RuntimeError("the offline engine is not loaded")
+        return part
