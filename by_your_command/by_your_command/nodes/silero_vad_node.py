@@ -2,13 +2,16 @@
 
 Listens on `input_topic` (default `audio_filtered`; set it to `audio`, or remap, when there is no
 echo control). Sleep/wake via `wake_cmd`, mute via `voice_active`, wake/sleep phrases on
-`prompt_text`; the state is latched on `attention_state`. Logic lives in by_your_command.vad.
+`prompt_text`, and (`spoken_wake`) a wake phrase spoken while asleep, decoded here; the state is
+latched on `attention_state`. Logic lives in by_your_command.vad.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 import time
+from collections import deque
 
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
@@ -18,11 +21,18 @@ from std_msgs.msg import Bool, String
 from by_your_command.nodes._audio_msgs import int16_field, pcm_of
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
-from by_your_command.vad.attention import Attention, PhraseCommand, PhraseMatcher
+from by_your_command.vad.attention import Attention, AttentionState, PhraseCommand, PhraseMatcher
 from by_your_command.vad.config import VadConfig
 from by_your_command.vad.detector import VoiceDetector
 from by_your_command.vad.model import SileroModel
 from by_your_command.vad.segmenter import Event, UtteranceChunk, VoiceActivity
+from by_your_command.vad.spoken_wake import (
+    RecognizerUnavailableError,
+    UtteranceCollector,
+    WakeRecognizer,
+    WakeResult,
+    WakeWorker,
+)
 
 NS_PER_S = 1_000_000_000
 STATS_PERIOD_S = 10.0
@@ -56,6 +66,17 @@ class SileroVadNode(Node):
         self._reported: tuple[int, ...] = ()
         self._last_audio = time.monotonic()
         self._last_report = time.monotonic()
+        # Spoken wake: the detector keeps segmenting while asleep, utterances go to a local
+        # recognizer and never to a publisher. _epoch tags each one, so a result that arrives
+        # after the state changed (a clap woke it, it slept again) is not obeyed.
+        self._asleep_audio = False  # the detector holds audio heard while asleep
+        self._epoch = 0
+        self._results: deque[tuple[int, WakeResult | Exception]] = deque()
+        self._results_lock = threading.Lock()
+        self.spoken_wakes = 0
+        self.wake_rejections = 0
+        self._collector = UtteranceCollector()
+        self._wake_worker = self._start_spoken_wake()
         self.create_timer(HOUSEKEEPING_PERIOD_S, self._housekeeping)
         self._publish_state()
         self.get_logger().info(
@@ -64,11 +85,64 @@ class SileroVadNode(Node):
             f"chunk={self.config.utterance_chunk_frames} frames, {self.attention.state.value}"
         )
 
+    def _start_spoken_wake(self) -> WakeWorker | None:
+        if not self.config.spoken_wake:
+            self.get_logger().info("spoken wake off (spoken_wake: false): only wake_cmd and prompt_text wake")
+            return None
+        try:
+            recognizer = WakeRecognizer(
+                self.config.wake_phrases, self.config.sleep_phrases, self.config.robot_name
+            )
+        except RecognizerUnavailableError as error:
+            self.get_logger().warning(f"spoken wake off: {error}")
+            return None
+        self._wake_guard = self.create_guard_condition(self._on_wake_results)
+        self.get_logger().info(f"spoken wake on: {list(recognizer.phrases)} heard while asleep wake it")
+        return WakeWorker(recognizer.recognize, self._wake_result, self._wake_result)
+
+    def _wake_result(self, epoch: int, result: WakeResult | Exception) -> None:
+        """Worker thread: hand the result to the executor (attention is only touched there)."""
+        with self._results_lock:
+            self._results.append((epoch, result))
+        self._wake_guard.trigger()
+
+    def _on_wake_results(self) -> None:
+        with self._results_lock:
+            results = list(self._results)
+            self._results.clear()
+        for epoch, result in results:
+            if isinstance(result, Exception):
+                errors = self._wake_worker.errors if self._wake_worker else 0
+                self.get_logger().error(f"spoken wake: recognizer failed ({errors} so far): {result!r}")
+            elif epoch != self._epoch or self.attention.state is not AttentionState.ASLEEP:
+                self.get_logger().info("spoken wake: result for an earlier state ignored")
+            elif result.wake:
+                self.spoken_wakes += 1
+                self.get_logger().info(f"'wake' phrase heard in speech: {result.text!r}")
+                self._change(self.attention.set_awake(True))
+            else:
+                # What was said while asleep stays private: the transcript is not logged.
+                self.wake_rejections += 1
+                self.get_logger().info(f"spoken wake: not a wake phrase ({self.wake_rejections} so far)")
+
     def _on_audio(self, msg: AudioChunk) -> None:
         self._last_audio = time.monotonic()
-        if not self.attention.listening:
+        if self.attention.listening:
+            self._publish(self._detect(msg))
+        elif self._wake_worker is not None and self.attention.state is AttentionState.ASLEEP:
+            self._asleep_audio = True
+            self._hear_asleep(self._detect(msg))
+        else:
             self.blocks_ignored += 1
+
+    def _hear_asleep(self, events: list[Event]) -> None:
+        """Whole utterances go to the recognizer; nothing (not even voice_activity) is published."""
+        if self._wake_worker is None:
             return
+        for pcm, rate in self._collector.feed(events):
+            self._wake_worker.submit(self._epoch, pcm, rate)
+
+    def _detect(self, msg: AudioChunk) -> list[Event]:
         stamp = _to_ns(msg.header.stamp)
         stamped = stamp != 0
         if not stamped:  # the arrival time, used only if this block starts a stream
@@ -83,7 +157,7 @@ class SileroVadNode(Node):
             self.get_logger().error(
                 f"bad audio chunk dropped ({self.blocks_rejected} so far): {error}", throttle_duration_sec=5.0
             )
-            return
+            return []
         if self.detector.discontinuities != gaps_before and self.detector.last_discontinuity is not None:
             gap = self.detector.last_discontinuity
             self.get_logger().info(
@@ -91,7 +165,7 @@ class SileroVadNode(Node):
                 f"({self.detector.discontinuities} so far)",
                 throttle_duration_sec=1.0,
             )
-        self._publish(events)
+        return events
 
     def _on_wake_cmd(self, msg: Bool) -> None:
         self._change(self.attention.set_awake(bool(msg.data)))
@@ -108,10 +182,23 @@ class SileroVadNode(Node):
     def _change(self, changed: bool) -> None:
         if not changed:
             return
-        if not self.attention.listening:
-            # Close the open utterance with its end marker; no stale pre-roll survives the pause.
-            self._publish(self.detector.stop())
+        # What the detector holds belongs to the state being left: awake audio is closed with its
+        # end marker, asleep audio is dropped. Either way no stale pre-roll survives the change.
+        events = self.detector.stop()
+        if self._asleep_audio:
+            self._collector.reset()
+        else:
+            self._publish(events)
+        self._asleep_audio = False
+        self._epoch += 1
         self._publish_state()
+
+    def _stop_detector(self) -> None:
+        """Audio stopped: close the open utterance where it belongs (published, or decoded)."""
+        if self._asleep_audio:
+            self._hear_asleep(self.detector.stop())
+        else:
+            self._publish(self.detector.stop())
 
     def _publish_state(self) -> None:
         self.state_pub.publish(String(data=self.attention.state.value))
@@ -147,7 +234,7 @@ class SileroVadNode(Node):
             # Audio stopped (mic unplugged, echo gate shut): whatever comes next is a new stream.
             if self.detector.in_utterance:
                 self.get_logger().warning("audio stopped mid-utterance: closing the utterance")
-            self._publish(self.detector.stop())
+            self._stop_detector()
         if now - self._last_report >= STATS_PERIOD_S:
             self._last_report = now
             self._report()
@@ -160,24 +247,39 @@ class SileroVadNode(Node):
             self.blocks_rejected,
             self.publish_failures,
             self.detector.discontinuities,
+            self._wake_worker.decoded if self._wake_worker else 0,
+            self._wake_worker.errors if self._wake_worker else 0,
         )
         if current != self._reported:
             self._reported = current
             self.get_logger().info(
                 f"frames={current[0]} utterances={current[1]} ignored_blocks={current[2]} "
                 f"rejected_blocks={current[3]} publish_failures={current[4]} stream_restarts={current[5]} "
-                f"resampled_blocks={self.detector.resampled_blocks}"
+                f"resampled_blocks={self.detector.resampled_blocks}{self._spoken_wake_stats()}"
             )
+
+    def _spoken_wake_stats(self) -> str:
+        worker = self._wake_worker
+        if worker is None:
+            return ""
+        return (
+            f" spoken_wake: decoded={worker.decoded} woke={self.spoken_wakes} rejected={self.wake_rejections}"
+            f" dropped={worker.dropped} too_long={self._collector.too_long} errors={worker.errors}"
+        )
 
     def before_shutdown(self) -> None:
         """Called by run_node on SIGINT/SIGTERM while the context is alive: an open utterance gets
         its end marker and voice_activity goes False, so consumers never wait for an end."""
-        if self.detector.in_utterance:
+        if self._asleep_audio:
+            self.detector.stop()  # asleep audio is never published, not even its end
+        elif self.detector.in_utterance:
             self.get_logger().info("shutting down mid-utterance: closing it")
             self._publish(self.detector.stop())
 
     def destroy_node(self) -> None:
         self.before_shutdown()  # when destroyed without run_node (tests, benchmarks)
+        if self._wake_worker is not None:
+            self._wake_worker.close()
         super().destroy_node()
 
 

@@ -54,6 +54,13 @@ class VadConfig:
         default_factory=lambda: list(DEFAULT_SLEEP_PHRASES),
         metadata={"help": "prompt_text commands that put the VAD to sleep (the whole text must be one)"},
     )
+    spoken_wake: bool = field(
+        default=True,
+        metadata={
+            "help": "while asleep, decode each utterance on the robot (pocketsphinx) and wake on a spoken "
+            "wake phrase; asleep audio is never published. Off with a log line if pocketsphinx is missing"
+        },
+    )
     robot_name: str = field(
         default="", metadata={"help": "a name that may start or end a command ('Barney, wake up')"}
     )
