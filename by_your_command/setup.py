@@ -45,8 +45,8 @@ INSTALL_REQUIRES = [
     "onnxruntime>=1.12",
     "openai>=3.52",  # GA realtime.connect; not the [realtime] extra (it caps websockets <16; 17.4 works)
     "google-genai>=2.33",  # Gemini Live; 3.x needs Python 3.11, so 3.10 (Humble) gets 2.33
-    "cryptography>=42",
-    "pocketsphinx>=5.0",  # offline recognition and spoken wake-up; the en-us model ships in the wheel  # the Gemini emulator's self-signed certificate (the SDK forces TLS)
+    "cryptography>=42",  # the Gemini emulator's self-signed certificate (the SDK forces TLS)
+    "pocketsphinx>=5.0",  # offline recognition and spoken wake-up; the en-us model ships in the wheel
 ]
 # Imported only where used. silero-vad (the VAD's ONNX model) is not listed: its own dependencies
 # pull in torch, so it is installed with `pip install --no-deps "silero-vad>=6.2"` (README; the

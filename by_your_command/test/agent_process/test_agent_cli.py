@@ -60,7 +60,10 @@ def checked(capsys: pytest.CaptureFixture[str], *argv: str) -> dict[str, Any]:
         ({"role": "talker"}, "role: must be one of"),
         ({"provider": {"model": 5}}, "provider.model: must be str, got int 5"),
         ({"provider": {"noise_reduction": "loud"}}, "provider.noise_reduction: must be one of"),
-        ({"provider": {"type": "telepathy"}}, "provider.type: must be one of ['gemini', 'offline', 'openai']"),
+        (
+            {"provider": {"type": "telepathy"}},
+            "provider.type: must be one of ['gemini', 'offline', 'openai']",
+        ),
         ({"provider": "gpt"}, "provider: must be a mapping"),
         ({"prompt_id": "no_such_prompt"}, "prompt_id: no prompt 'no_such_prompt'"),
         ({"bridge": {"url": "http://robot:9090"}}, "bridge.url: must be ws://host:port"),

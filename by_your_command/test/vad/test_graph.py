@@ -141,7 +141,7 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
     # Played 3x faster, the file's stamps still follow its own timeline: consecutive chunks are
     # whole chunk durations apart (best effort may lose some), never compressed into fake gaps.
     stamps_ms = [m.header.stamp.sec * 1000 + m.header.stamp.nanosec / 1e6 for m in played]
-    steps = [later - earlier for earlier, later in zip(stamps_ms, stamps_ms[1:])]
+    steps = [later - earlier for earlier, later in zip(stamps_ms, stamps_ms[1:], strict=False)]
     assert len(steps) > 10 and all(abs(step / 100 - round(step / 100)) < 0.01 and step > 0 for step in steps)
     assert [m.data for m in activity] == [True, False] * expected
     by_id: dict[int, list[AudioDataUtterance]] = {}
