@@ -1,0 +1,200 @@
+"""Offline recognition accuracy: commands recognized exactly, chat never turned into a command.
+
+Corpus, synthesized now with espeak-ng in voices the recognizer was NOT tuned on (tuning used
+en-us and en-gb): every command, phrase and question of the vocabulary in up to two spoken forms
+(each form said by two of the held-out voices), and CHAT lines (small talk, questions, sentences
+holding command words), each clean and with white noise at --snr dB. Both searches decode the same
+audio through OfflineRecognizer: the filler-word garbage model (what ships) and a bare JSGF grammar
+(baseline). Figures as JSON lines, then a table and the misses.
+usage: scripts/run.sh python bench/bench_offline_recognition.py [--forms 2] [--snr 15] [--voices ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import json
+import random
+import subprocess
+import time
+from typing import Any
+
+import numpy as np
+
+from by_your_command.audio.pcm import Int16Array, resample
+from by_your_command.offline.recognizer import OfflineRecognizer, RecognizerConfig, Search
+from by_your_command.offline.spoken import RecognitionKind, SpokenForm
+
+RATE = 16000
+HELD_OUT_VOICES = ("en-us+f3", "en-us+m7", "en-gb-x-rp", "en-029")
+CHAT = (
+    "I looked up the answer yesterday", "don't stop believing", "hello there, how are you today",
+    "what a lovely morning", "can you hear me", "I think it might rain later", "my phone is out of battery",
+    "turn the music down a little", "the cat is sleeping on the sofa", "let's go out for lunch",
+    "I need to wake up earlier tomorrow", "do you like pizza", "where did I put my keys",
+    "that was a really good movie", "thank you very much", "how old are you", "tell me a joke",
+    "I am looking for the kitchen", "she turned left at the corner", "nice to meet you",
+    "the weather is terrible", "I can't sleep at night", "please be quiet", "what do you see",
+    "is it going to snow", "how far is the station", "my favourite colour is blue",
+    "he tracked the package online", "we should follow the recipe", "good night everyone",
+    "are you a robot", "that sounds great", "I have a question about dinner", "yes of course",
+    "no thanks", "open the door please", "what is the capital of France", "play some music",
+    "I left my bag on the bus", "reach for the stars", "look at that bird", "the panda is eating bamboo",
+    "sorry I was not listening", "could you repeat that", "the stock market went up today",
+    "move over, let me sit down", "I'm going to the shop", "bumper cars are fun", "right, okay then",
+    "the meeting starts at nine", "how do you spell that", "I forgot my umbrella",
+)  # fmt: skip
+COMMAND_KINDS = (RecognitionKind.COMMAND, RecognitionKind.PHRASE)
+
+
+@dataclasses.dataclass(frozen=True)
+class Utterance:
+    text: str
+    voice: str
+    expected: SpokenForm | None  # None: chat, must be rejected
+
+
+def emit(figure: str, value: float, unit: str, **extra: Any) -> None:
+    record = {"bench": "offline_recognition", "figure": figure, "value": round(value, 4), "unit": unit}
+    print(json.dumps({**record, **extra}), flush=True)
+
+
+def synthesize(text: str, voice: str) -> Int16Array:
+    wav = subprocess.run(
+        ["espeak-ng", "-v", voice, "-s", "150", "--stdout", "--stdin"],
+        input=text.encode(),
+        capture_output=True,
+        check=True,
+        timeout=30,
+    ).stdout
+    rate = int.from_bytes(wav[24:28], "little")
+    return resample(np.frombuffer(wav[44:], dtype="<i2").astype(np.int16), rate, RATE)
+
+
+def with_noise(speech: Int16Array, snr_db: float, seed: int) -> Int16Array:
+    """White noise at snr_db below the speech's power, also 0.3 s before and after (VAD pre-roll)."""
+    rng = np.random.default_rng(seed)
+    signal = speech.astype(np.float64)
+    active = signal[np.abs(signal) > 300]
+    power = float(np.mean(active**2)) if len(active) else 1.0
+    pad = int(0.3 * RATE)
+    mixed = rng.normal(0.0, np.sqrt(power / 10 ** (snr_db / 10)), len(signal) + 2 * pad)
+    mixed[pad : pad + len(signal)] += signal
+    return np.clip(mixed, -32768, 32767).astype(np.int16)
+
+
+def corpus(forms: list[SpokenForm], voices: tuple[str, ...], per_command: int) -> list[Utterance]:
+    by_meaning: dict[str, list[SpokenForm]] = collections.defaultdict(list)
+    for form in forms:
+        by_meaning[f"{form.kind.value}:{form.canonical}"].append(form)
+    chooser = random.Random(0)
+    utterances = []
+    turn = 0
+    for meaning in sorted(by_meaning):
+        choices = by_meaning[meaning]
+        for form in chooser.sample(choices, min(per_command, len(choices))):
+            for _ in range(2):  # two voices per form, rotating through the held-out ones
+                utterances.append(Utterance(form.words, voices[turn % len(voices)], form))
+                turn += 1
+    utterances += [Utterance(text, voice, None) for text in CHAT for voice in voices]
+    return utterances
+
+
+@dataclasses.dataclass
+class Tally:
+    commands: int = 0
+    exact: int = 0
+    chat: int = 0
+    chat_as_command: int = 0
+    chat_as_question: int = 0
+    audio_s: float = 0.0
+    decode_s: float = 0.0
+    misses: list[str] = dataclasses.field(default_factory=list)
+    per_voice: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
+    per_voice_total: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
+
+
+def measure(
+    recognizer: OfflineRecognizer, audio: list[tuple[Utterance, str, Int16Array]]
+) -> dict[str, Tally]:
+    tallies: dict[str, Tally] = collections.defaultdict(Tally)
+    for utterance, condition, pcm in audio:
+        start = time.perf_counter()
+        result = recognizer.recognize(pcm.tobytes(), RATE)
+        elapsed = time.perf_counter() - start
+        for tally in (tallies[condition], tallies["all"]):
+            tally.audio_s += len(pcm) / RATE
+            tally.decode_s += elapsed
+            expected = utterance.expected
+            if expected is None:
+                tally.chat += 1
+                tally.chat_as_command += result.kind in COMMAND_KINDS
+                tally.chat_as_question += result.kind is RecognitionKind.QUESTION
+                if result.kind is not RecognitionKind.REJECTED:
+                    tally.misses.append(f"chat {utterance.text!r} ({utterance.voice}) -> {result.canonical}")
+                continue
+            tally.commands += 1
+            hit = (result.kind, result.canonical) == (expected.kind, expected.canonical)
+            tally.exact += hit
+            tally.per_voice_total[utterance.voice] += 1
+            tally.per_voice[utterance.voice] += hit
+            if not hit:
+                tally.misses.append(f"{utterance.text!r} ({utterance.voice}) -> {result.text!r}")
+    return tallies
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--forms", type=int, default=2, help="spoken forms per command (default 2)")
+    parser.add_argument("--snr", type=float, default=15.0, help="noise condition, dB SNR (default 15)")
+    parser.add_argument("--voices", nargs="+", default=list(HELD_OUT_VOICES))
+    parser.add_argument("--misses", type=int, default=15, help="misses listed per search")
+    args = parser.parse_args()
+
+    searches = {search: OfflineRecognizer(RecognizerConfig(search=search)) for search in Search}
+    utterances = corpus(searches[Search.FILLER_LM].forms, tuple(args.voices), args.forms)
+    start = time.perf_counter()
+    audio: list[tuple[Utterance, str, Int16Array]] = []
+    for index, utterance in enumerate(utterances):
+        speech = synthesize(utterance.text, utterance.voice)
+        audio += [
+            (utterance, "clean", speech),
+            (utterance, f"snr{args.snr:g}", with_noise(speech, args.snr, index)),
+        ]
+    commands = sum(u.expected is not None for u in utterances)
+    emit("corpus", len(audio), "utterances", commands=2 * commands, chat=2 * (len(utterances) - commands),
+         voices=args.voices, synth_s=round(time.perf_counter() - start, 1))  # fmt: skip
+
+    results = {search: measure(recognizer, audio) for search, recognizer in searches.items()}
+    rows = []
+    for search, tallies in results.items():
+        for condition, tally in tallies.items():
+            accuracy = 100.0 * tally.exact / max(tally.commands, 1)
+            rtf = tally.decode_s / max(tally.audio_s, 1e-9)
+            extra = {"search": search.value, "condition": condition}
+            emit("exact_commands", accuracy, "%", n=tally.commands, **extra)
+            emit("chat_as_command", tally.chat_as_command, "lines", n=tally.chat, **extra)
+            emit("chat_as_question", tally.chat_as_question, "lines", n=tally.chat, **extra)
+            emit("decode_speed", rtf, "x real time", **extra)
+            rows.append((search.value, condition, accuracy, tally.chat_as_command, tally.chat_as_question,
+                         tally.chat, rtf))  # fmt: skip
+        for voice, total in sorted(tallies["all"].per_voice_total.items()):
+            emit("exact_commands_by_voice", 100.0 * tallies["all"].per_voice[voice] / total, "%",
+                 search=search.value, voice=voice, n=total)  # fmt: skip
+
+    print(f"\n{'search':<14}{'condition':<10}{'exact cmds':>11}{'chat->cmd':>11}{'chat->q':>9}{'RTF':>8}")
+    for search_name, condition, accuracy, as_command, as_question, chat, rtf in rows:
+        print(f"{search_name:<14}{condition:<10}{accuracy:>10.1f}%{as_command:>6}/{chat:<4}"
+              f"{as_question:>5}/{chat:<3}{rtf:>8.3f}")  # fmt: skip
+    for search, tallies in results.items():
+        misses = tallies["all"].misses
+        print(f"\n{search.value}: {len(misses)} misses" + (f", first {args.misses}:" if misses else ""))
+        for miss in misses[: args.misses]:
+            print(f"  {miss}")
+
+
+if __name__ == "__main__":
+    main()

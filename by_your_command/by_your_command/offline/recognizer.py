@@ -1,0 +1,208 @@
+"""Offline recognition of one whole utterance: a command, a wake/sleep/stop phrase, a question, or
+nothing (rejected).
+
+pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
+the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
+but forces every utterance into its nearest form, and a filler model where the forms compete with a
+loop of everyday words. Only a hypothesis that is exactly one spoken form in the grammar AND means
+the same in the filler model is accepted; chat decodes as filler words and is rejected (see
+docs/offline.md for the measurements behind this choice).
+
+Input is untrusted: odd byte counts, unsupported rates, too short or too long utterances and
+silence are rejected before decoding (a counted reason, never an exception), which also bounds
+the decode time by max_utterance_s.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+import tempfile
+import threading
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from by_your_command.audio.pcm import Int16Array, resample
+from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
+from by_your_command.offline.filler_words import FILLER_WORDS
+from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
+from by_your_command.offline.spoken import (
+    RecognitionKind,
+    SpokenForm,
+    SpokenVocabularyConfig,
+    build_spoken_forms,
+    pronounceable,
+)
+
+DECODER_RATE = 16000  # the en-us acoustic model's rate
+MIN_INPUT_RATE, MAX_INPUT_RATE = 8000, 48000
+GRAMMAR_SEARCH, FILLER_SEARCH = "grammar", "filler"
+
+
+class Rejection(str, enum.Enum):
+    """Why an utterance produced nothing (counted per reason)."""
+
+    ODD_BYTES = "odd number of bytes: not 16-bit PCM"
+    BAD_RATE = "unsupported sample rate"
+    TOO_SHORT = "too short"
+    TOO_LONG = "too long: not decoded"
+    SILENCE = "silence"
+    NOT_IN_GRAMMAR = "not a command, phrase or question"
+    UNCONFIRMED = "the filler model heard something else"
+
+
+class Search(str, enum.Enum):
+    # The grammar proposes, the filler model must agree (same meaning): never acts on chat.
+    VERIFIED = "verified"
+    FILLER_LM = "filler_lm"  # forms + garbage loop of filler words only (rejects most chat)
+    BARE_GRAMMAR = "bare_grammar"  # JSGF of the forms only: the baseline that forces chat into commands
+
+
+@dataclass(frozen=True)
+class RecognizerConfig:
+    commands_file: str = ""  # empty: the installed config/commands.yaml
+    spoken: SpokenVocabularyConfig = field(default_factory=SpokenVocabularyConfig)
+    search: Search = Search.VERIFIED
+    garbage: GarbageWeights = field(default_factory=GarbageWeights)
+    language_weight: float = 6.5  # pocketsphinx `lw`: how much the model counts against the acoustics
+    filler_words: tuple[str, ...] = FILLER_WORDS
+    max_utterance_s: float = 8.0  # longer input is rejected unread: commands are short
+    min_utterance_s: float = 0.15
+    silence_dbfs: float = -55.0  # quieter (RMS) input is silence, not decoded
+    # Digital silence makes pocketsphinx drop the last word (measured): faint noise under the whole
+    # utterance and a short noise tail after it.
+    dither_rms: float = 10.0
+    noise_tail_s: float = 0.3
+    noise_tail_rms: float = 100.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.min_utterance_s < self.max_utterance_s:
+            raise ValueError("need 0 < min_utterance_s < max_utterance_s")
+        if self.language_weight <= 0:
+            raise ValueError("language_weight must be positive")
+        if self.dither_rms < 0 or self.noise_tail_rms < 0 or self.noise_tail_s < 0:
+            raise ValueError("dither and noise tail must not be negative")
+
+
+@dataclass(frozen=True)
+class Recognition:
+    kind: RecognitionKind
+    text: str  # what the decoder heard (the spoken form, or its hypothesis when rejected)
+    canonical: str  # command normal form, phrase command or question id; "" when rejected
+    confidence: float  # posterior of the hypothesis (0..1); 0 when rejected
+    reason: str = ""  # why it was rejected
+
+
+@dataclass
+class RecognizerStats:
+    decoded: int = 0
+    by_kind: Counter[str] = field(default_factory=Counter)
+    rejections: Counter[str] = field(default_factory=Counter)
+
+
+def _rejected(reason: Rejection, text: str = "") -> Recognition:
+    return Recognition(RecognitionKind.REJECTED, text, "", 0.0, reason.value)
+
+
+class OfflineRecognizer:
+    """Decodes whole utterances; thread-safe (one decoder, one utterance at a time)."""
+
+    def __init__(self, config: RecognizerConfig | None = None, vocabulary: Vocabulary | None = None) -> None:
+        self.config = config or RecognizerConfig()
+        self.vocabulary = vocabulary or load_vocabulary(self.config.commands_file or None)
+        self.stats = RecognizerStats()
+        self._lock = threading.Lock()
+        # Imported here: the rest of the package works without the 38 MB wheel.
+        import pocketsphinx  # type: ignore[import-untyped]
+
+        self._decoder = pocketsphinx.Decoder(lm=None, lw=self.config.language_weight, loglevel="FATAL")
+        known = self._decoder.lookup_word
+        self.forms: list[SpokenForm] = pronounceable(
+            build_spoken_forms(self.vocabulary, self.config.spoken), lambda word: known(word) is not None
+        )
+        self._by_words = {form.words: form for form in self.forms}
+        missing = [word for word in self.config.filler_words if known(word) is None]
+        if missing:
+            raise ValueError(f"filler words not in the pronunciation dictionary: {missing}")
+        self._load_searches()
+
+    def _load_searches(self) -> None:
+        words = list(self._by_words)
+        if self.config.search is not Search.FILLER_LM:
+            self._decoder.add_jsgf_string(GRAMMAR_SEARCH, jsgf_grammar(words))
+        if self.config.search is Search.BARE_GRAMMAR:
+            return
+        model = arpa_model(words, self.config.filler_words, self.config.garbage)
+        handle, path = tempfile.mkstemp(suffix=".arpa", prefix="byc-offline-")
+        try:
+            with os.fdopen(handle, "w", encoding="ascii") as file:
+                file.write(model)
+            self._decoder.add_lm_file(FILLER_SEARCH, path)
+        finally:
+            os.unlink(path)
+
+    def recognize(self, pcm: bytes, sample_rate: int) -> Recognition:
+        """One whole utterance of mono int16 little-endian PCM; never raises on bad audio."""
+        result = self._recognize(pcm, sample_rate)
+        self.stats.by_kind[result.kind.value] += 1
+        if result.kind is RecognitionKind.REJECTED:
+            self.stats.rejections[result.reason] += 1
+        return result
+
+    def _recognize(self, pcm: bytes, sample_rate: int) -> Recognition:
+        config = self.config
+        if len(pcm) % 2:
+            return _rejected(Rejection.ODD_BYTES)
+        if not MIN_INPUT_RATE <= sample_rate <= MAX_INPUT_RATE:
+            return _rejected(Rejection.BAD_RATE)
+        seconds = len(pcm) / 2 / sample_rate
+        if seconds > config.max_utterance_s:
+            return _rejected(Rejection.TOO_LONG)
+        if seconds < config.min_utterance_s:
+            return _rejected(Rejection.TOO_SHORT)
+        samples: Int16Array = np.frombuffer(pcm, dtype="<i2").astype(np.int16)
+        if _rms_dbfs(samples) < config.silence_dbfs:
+            return _rejected(Rejection.SILENCE)
+        audio = self._prepared(resample(samples, sample_rate, DECODER_RATE))
+        first = FILLER_SEARCH if config.search is Search.FILLER_LM else GRAMMAR_SEARCH
+        hypothesis, confidence = self._decode(audio, first)
+        form = self._by_words.get(hypothesis)
+        if form is None:
+            return _rejected(Rejection.NOT_IN_GRAMMAR, hypothesis)
+        if config.search is Search.VERIFIED:
+            # The grammar always finds its nearest form; only when the filler model, free to
+            # hear any words, hears the same meaning is it a command.
+            check, confidence = self._decode(audio, FILLER_SEARCH)
+            confirmed = self._by_words.get(check)
+            if confirmed is None or confirmed.canonical != form.canonical:
+                return _rejected(Rejection.UNCONFIRMED, f"{hypothesis} / {check}")
+        return Recognition(form.kind, form.words, form.canonical, confidence)
+
+    def _prepared(self, samples: Int16Array) -> bytes:
+        config = self.config
+        rng = np.random.default_rng(len(samples))  # the same input decodes the same way
+        dithered = samples + rng.normal(0.0, config.dither_rms, len(samples))
+        tail = rng.normal(0.0, config.noise_tail_rms, int(config.noise_tail_s * DECODER_RATE))
+        audio = np.clip(np.concatenate([dithered, tail]), -32768, 32767)
+        return bytes(np.rint(audio).astype("<i2").tobytes())
+
+    def _decode(self, audio: bytes, search: str) -> tuple[str, float]:
+        with self._lock:
+            decoder = self._decoder
+            decoder.activate_search(search)
+            decoder.start_utt()
+            decoder.process_raw(audio, False, True)
+            decoder.end_utt()
+            self.stats.decoded += 1
+            hypothesis = decoder.hyp()
+            if hypothesis is None:
+                return "", 0.0
+            confidence = float(decoder.get_prob())
+        return " ".join(str(hypothesis.hypstr).split()), min(1.0, max(0.0, confidence))
+
+
+def _rms_dbfs(samples: Int16Array) -> float:
+    power = float(np.mean(np.square(samples, dtype=np.float64))) if len(samples) else 0.0
+    return 10.0 * float(np.log10(max(power, 1e-12) / 32768.0**2))

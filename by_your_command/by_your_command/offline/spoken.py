@@ -1,0 +1,191 @@
+"""What the offline recognizer can hear: every spoken form, and what each one means.
+
+Spoken forms are generated from the command vocabulary (config/commands.yaml), so a preset added
+there can be said without touching this code. Each form maps to a canonical string: for commands
+and phrases the normal form the command processor accepts (`pan@left`, `lookup`, `wake`), for
+questions a short question id (`time`). Every command form is checked against CommandGrammar when
+the set is built: a form whose canonical string does not parse back to itself is a bug, not a
+runtime surprise.
+
+Names that are not dictionary words are split into two that are (`leftish` -> "left ish",
+`tenhut` -> "ten hut"); a word that cannot be pronounced is a configuration error.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from by_your_command.commands.grammar import CommandGrammar
+from by_your_command.commands.vocabulary import CommandSpec, ModifierKind, ModifierUse, Vocabulary
+from by_your_command.vad.config import DEFAULT_SLEEP_PHRASES, DEFAULT_WAKE_PHRASES
+
+_WORD = re.compile(r"^[a-z]+(?:'[a-z]+)?$")
+
+
+class RecognitionKind(str, enum.Enum):
+    COMMAND = "command"  # a robot command: canonical is its normal form (pan@left)
+    PHRASE = "phrase"  # wake / sleep / stop: canonical is that command (they are gated separately)
+    QUESTION = "question"  # a question the offline agent answers: canonical is its id (time)
+    REJECTED = "rejected"  # chat, noise, or nothing the grammar covers
+
+
+@dataclass(frozen=True)
+class SpokenForm:
+    words: str  # lower-case dictionary words separated by single spaces
+    kind: RecognitionKind
+    canonical: str
+
+
+def _default_phrases() -> dict[str, tuple[str, ...]]:
+    return {
+        "wake": tuple(DEFAULT_WAKE_PHRASES),
+        "sleep": tuple(DEFAULT_SLEEP_PHRASES),
+        "stop": ("stop", "stop moving", "halt", "freeze"),
+    }
+
+
+@dataclass(frozen=True)
+class SpokenVocabularyConfig:
+    # Extra ways to say a command or bearing name (the name itself is always a spoken form).
+    aliases: dict[str, tuple[str, ...]] = field(
+        default_factory=lambda: {
+            "lookup": ("look up",),
+            "lookout": ("look out",),
+            "tenhut": ("attention",),
+            "forward": ("ahead",),
+        }
+    )
+    # Canonical command -> phrases. These commands come back as PHRASE, so a sleeping robot can
+    # listen for "wake" alone and "stop" can skip the queue.
+    phrases: dict[str, tuple[str, ...]] = field(default_factory=_default_phrases)
+    # Question id -> ways to ask it; the agent owns the answers.
+    questions: dict[str, tuple[str, ...]] = field(
+        default_factory=lambda: {
+            "time": ("what time is it", "what is the time", "tell me the time"),
+            "capabilities": ("what can you do", "help"),
+            "identity": ("who are you", "what is your name"),
+        }
+    )
+    # Labels that label commands (follow, track) can take by voice: "follow me" -> follow@me.
+    labels: tuple[str, ...] = ("me", "person", "ball")
+    # Also accept "turn to the left" besides "turn left", for these bearings ("to the ahead" is
+    # not English).
+    direction_prefix: str = "to the"
+    prefixed_bearings: tuple[str, ...] = (
+        "left",
+        "right",
+        "full-left",
+        "full-right",
+        "back-left",
+        "back-right",
+    )
+    # A lone bearing ("right") means pan@right in the command grammar, but spoken alone it is far
+    # more often agreement than a command, so it is off unless asked for.
+    bare_bearings: bool = False
+
+
+def _spoken_name(name: str, aliases: dict[str, tuple[str, ...]]) -> tuple[str, ...]:
+    plain = " ".join(name.replace("-", " ").replace("_", " ").split())
+    return (plain, *aliases.get(name, ()))
+
+
+def _direction_words(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -> list[tuple[str, str]]:
+    """(spoken, bearing) pairs for every bearing, with and without the direction prefix."""
+    pairs = []
+    for bearing in vocabulary.bearings:
+        prefixed = config.direction_prefix and bearing in config.prefixed_bearings
+        prefixes = ["", config.direction_prefix] if prefixed else [""]
+        for spoken in _spoken_name(bearing, config.aliases):
+            pairs += [(f"{prefix} {spoken}".strip(), bearing) for prefix in prefixes]
+    return pairs
+
+
+def _command_forms(
+    spec: CommandSpec, vocabulary: Vocabulary, config: SpokenVocabularyConfig
+) -> Iterable[tuple[str, str]]:
+    names = _spoken_name(spec.name, config.aliases)
+    if spec.modifier is not ModifierUse.REQUIRED:
+        yield from ((name, spec.name) for name in names)
+    if spec.modifier is ModifierUse.NONE:
+        return
+    if spec.modifier_kind is ModifierKind.LABEL:
+        for name in names:
+            for label in config.labels:
+                yield f"{name} {label}", f"{spec.name}@{label}"
+                if label != "me":
+                    yield f"{name} the {label}", f"{spec.name}@{label}"
+        return
+    for name in names:
+        for spoken, bearing in _direction_words(vocabulary, config):
+            yield f"{name} {spoken}", f"{spec.name}@{bearing}"
+
+
+def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -> list[SpokenForm]:
+    """Every spoken form, in a stable order; raises ValueError on a form that maps ambiguously."""
+    grammar = CommandGrammar(vocabulary)
+    forms: dict[str, SpokenForm] = {}
+
+    def add(words: str, kind: RecognitionKind, canonical: str) -> None:
+        words = " ".join(words.lower().split())
+        known = forms.get(words)
+        if known is not None and known.canonical != canonical:
+            raise ValueError(f"spoken form {words!r} means both {known.canonical!r} and {canonical!r}")
+        forms.setdefault(words, SpokenForm(words, kind, canonical))
+
+    for canonical, spoken in config.phrases.items():
+        _check_canonical(grammar, canonical)
+        for words in spoken:
+            add(words, RecognitionKind.PHRASE, canonical)
+    for spec in vocabulary.commands.values():
+        kind = RecognitionKind.PHRASE if spec.name in config.phrases else RecognitionKind.COMMAND
+        for words, canonical in _command_forms(spec, vocabulary, config):
+            _check_canonical(grammar, canonical)
+            add(words, kind, canonical)
+    if config.bare_bearings and "pan" in vocabulary.commands:
+        for words, bearing in _direction_words(vocabulary, config):
+            _check_canonical(grammar, f"pan@{bearing}")
+            add(words, RecognitionKind.COMMAND, f"pan@{bearing}")
+    for question, spoken in config.questions.items():
+        for words in spoken:
+            add(words, RecognitionKind.QUESTION, question)
+    return list(forms.values())
+
+
+def _check_canonical(grammar: CommandGrammar, canonical: str) -> None:
+    parsed = grammar.parse_one(canonical)
+    if parsed.command is None or parsed.command.text != canonical:
+        raise ValueError(f"{canonical!r} is not a command in normal form: {parsed.reason or parsed.command}")
+
+
+def pronounceable(forms: list[SpokenForm], in_dictionary: Callable[[str], bool]) -> list[SpokenForm]:
+    """The forms rewritten into dictionary words: a missing word is split in two that exist.
+
+    Raises ValueError naming the word when neither the word nor any split of it is known.
+    """
+    cache: dict[str, str] = {}
+
+    def word(text: str) -> str:
+        if text not in cache:
+            cache[text] = _pronounceable_word(text, in_dictionary)
+        return cache[text]
+
+    return [
+        SpokenForm(" ".join(word(part) for part in form.words.split()), form.kind, form.canonical)
+        for form in forms
+    ]
+
+
+def _pronounceable_word(text: str, in_dictionary: Callable[[str], bool]) -> str:
+    if not _WORD.match(text):
+        raise ValueError(f"{text!r} is not a plain word (letters and one apostrophe)")
+    if in_dictionary(text):
+        return text
+    # The longest known head first: "leftish" -> "left ish", not "le ftish".
+    for cut in range(len(text) - 2, 1, -1):
+        head, tail = text[:cut], text[cut:]
+        if in_dictionary(head) and in_dictionary(tail):
+            return f"{head} {tail}"
+    raise ValueError(f"cannot pronounce {text!r}: not in the dictionary and not two words that are")

@@ -1,0 +1,97 @@
+"""Spoken forms generated from the command vocabulary: coverage and the round trip to commands."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from by_your_command.commands.grammar import CommandGrammar
+from by_your_command.commands.vocabulary import ModifierKind, ModifierUse, load_vocabulary
+from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
+from by_your_command.offline.spoken import (
+    RecognitionKind,
+    SpokenVocabularyConfig,
+    build_spoken_forms,
+    pronounceable,
+)
+
+VOCABULARY = load_vocabulary()
+CONFIG = SpokenVocabularyConfig()
+FORMS = build_spoken_forms(VOCABULARY, CONFIG)
+DICTIONARY = {"turn", "left", "ish", "ten", "hut", "look", "up"}
+
+
+@pytest.mark.unit
+def test_every_command_and_modifier_of_the_vocabulary_can_be_said() -> None:
+    canonicals = {form.canonical for form in FORMS}
+    for spec in VOCABULARY.commands.values():
+        if spec.modifier is not ModifierUse.REQUIRED:
+            assert spec.name in canonicals
+        if spec.modifier is ModifierUse.NONE:
+            continue
+        modifiers = CONFIG.labels if spec.modifier_kind is ModifierKind.LABEL else VOCABULARY.bearings
+        for modifier in modifiers:
+            assert f"{spec.name}@{modifier}" in canonicals
+
+
+@pytest.mark.unit
+def test_every_command_form_round_trips_to_the_normal_form_the_processor_accepts() -> None:
+    grammar = CommandGrammar(VOCABULARY)
+    commands = [form for form in FORMS if form.kind is not RecognitionKind.QUESTION]
+    assert len(commands) > 100
+    for form in commands:
+        parsed = grammar.parse_one(form.canonical)
+        assert parsed.command is not None and parsed.command.text == form.canonical, form
+
+
+@pytest.mark.unit
+def test_natural_spoken_forms_map_to_canonical_commands() -> None:
+    meaning = {form.words: (form.kind, form.canonical) for form in FORMS}
+    assert meaning["look up"] == (RecognitionKind.COMMAND, "lookup")
+    assert meaning["pan left"] == (RecognitionKind.COMMAND, "pan@left")
+    assert meaning["turn to the full right"] == (RecognitionKind.COMMAND, "turn@full-right")
+    assert meaning["move ahead"] == (RecognitionKind.COMMAND, "move@forward")
+    assert meaning["follow me"] == (RecognitionKind.COMMAND, "follow@me")
+    assert meaning["go to sleep"] == (RecognitionKind.PHRASE, "sleep")
+    assert meaning["wake up"] == (RecognitionKind.PHRASE, "wake")
+    assert meaning["stop"] == (RecognitionKind.PHRASE, "stop")
+    assert meaning["what time is it"] == (RecognitionKind.QUESTION, "time")
+
+
+@pytest.mark.unit
+def test_a_lone_bearing_is_a_command_only_when_asked_for() -> None:
+    assert "right" not in {form.words for form in FORMS}
+    with_bearings = build_spoken_forms(VOCABULARY, dataclasses.replace(CONFIG, bare_bearings=True))
+    assert {form.words: form.canonical for form in with_bearings}["right"] == "pan@right"
+
+
+@pytest.mark.unit
+def test_a_spoken_form_with_two_meanings_or_a_bad_phrase_is_a_configuration_error() -> None:
+    clash = dataclasses.replace(CONFIG, questions={"time": ("stop",)})
+    with pytest.raises(ValueError, match="means both"):
+        build_spoken_forms(VOCABULARY, clash)
+    bad_phrase = dataclasses.replace(CONFIG, phrases={"dance": ("dance",)})
+    with pytest.raises(ValueError, match="not a command"):
+        build_spoken_forms(VOCABULARY, bad_phrase)
+
+
+@pytest.mark.unit
+def test_names_outside_the_dictionary_are_split_into_words_that_are_in_it() -> None:
+    forms = [f for f in FORMS if f.words in ("turn leftish", "tenhut", "look up")]
+    spoken = pronounceable(forms, DICTIONARY.__contains__)
+    assert {form.words for form in spoken} == {"turn left ish", "ten hut", "look up"}
+    with pytest.raises(ValueError, match="cannot pronounce 'zqxj'"):
+        pronounceable([dataclasses.replace(forms[0], words="zqxj")], DICTIONARY.__contains__)
+
+
+@pytest.mark.unit
+def test_the_model_chains_each_form_and_lets_any_word_loop_as_garbage() -> None:
+    text = arpa_model(["look up", "stop"], ["hello", "world"], GarbageWeights())
+    assert "ngram 1=7" in text  # <s> </s> look up stop hello world
+    assert "-0.3233 <s> look" in text and "-0.3233 <s> stop" in text  # (1 - 0.05) / 2
+    assert "-0.0044 look up" in text and "-0.0044 up </s>" in text  # 1 - 0.01
+    assert "-0.6990 hello -2.0000" in text  # 1/5 of the words, back-off log10(0.01)
+    assert "public <utterance> = look up | stop;" in jsgf_grammar(["stop", "look up"])
+    with pytest.raises(ValueError):
+        GarbageWeights(garbage_start=1.0)
