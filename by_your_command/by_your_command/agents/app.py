@@ -88,6 +88,12 @@ async def run_agent(prepared: PreparedAgent) -> int:
     )
     with _stop_on_signals(runtime.stop):  # before anything starts: an early signal stops cleanly too
         try:
+            if prepared.provider.warm_up is not None:
+                try:
+                    await asyncio.to_thread(prepared.provider.warm_up)
+                except (ImportError, OSError, ValueError, RuntimeError) as error:
+                    log.error("agent %s: the provider cannot start: %s", config.agent_id, error)
+                    return EXIT_FATAL
             await client.start()
             await runtime.run()
             return EXIT_STOPPED

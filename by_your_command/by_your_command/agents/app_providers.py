@@ -27,6 +27,9 @@ class BuiltProvider:
     settings: Mapping[str, Any]  # every setting with its default filled in (for --check)
     secret: str  # the key, so logging can redact it; "" for providers without one
     key_env: str = ""  # the environment variable it came from
+    # Heavy local set-up done once before the agent starts listening. The offline engine's load
+    # holds the GIL for seconds even in a thread: during a turn it would stall the event loop.
+    warm_up: Callable[[], None] | None = None
 
 
 @dataclass(frozen=True)
@@ -101,7 +104,7 @@ def _build_offline(settings: Mapping[str, Any], key: str) -> BuiltProvider:
 
     values = dataclasses.asdict(config)
     values["acknowledgements"] = dict(config.acknowledgements)
-    return BuiltProvider(factory, values, "")
+    return BuiltProvider(factory, values, "", warm_up=engine.load)
 
 
 # --- gemini ------------------------------------------------------------------------------------

@@ -24,6 +24,10 @@ class FileSourceConfig:
     lead_silence_ms: int = field(
         default=0, metadata={"help": "silence published before the first file (lets a graph settle)"}
     )
+    wait_for_topic: str = field(
+        default="",
+        metadata={"help": "also wait for a subscriber on this topic (prompt_voice: an agent listens)"},
+    )
 
     def __post_init__(self) -> None:
         if self.sample_rate <= 0:

@@ -6,7 +6,7 @@
 #   look up · pan left · what time is it · go to sleep · turn right (asleep: must be ignored)
 #   · wake up · stop
 #
-# Voices: en-us+m3 and en-gb-x-rp, not the corpus voices (en-us, en-us+f3, en-gb) that the offline
+# Voices: en-us+m7 and en-gb-x-rp, not the corpus voices (en-us, en-us+f3, en-gb) that the offline
 # recognizer is tuned and measured on. A faint pink-noise bed (about -50 dBFS) runs under
 # everything, as in a quiet room. Deterministic: espeak-ng is, and sox runs with -R (repeatable
 # noise), so the same tools write the same bytes.
@@ -15,7 +15,7 @@ set -euo pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 OUT="${1:-$HERE/demo_speech.wav}"
 RATE=16000
-VOICE_A="en-us+m3"
+VOICE_A="en-us+m7"
 VOICE_B="en-gb-x-rp"
 NOISE_VOLUME=0.006
 for tool in espeak-ng sox soxi; do

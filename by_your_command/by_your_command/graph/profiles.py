@@ -171,6 +171,10 @@ def _drafts(chosen: Profile, options: GraphOptions) -> list[_Draft]:
             "min_subscribers": listeners,
             "lead_silence_ms": FILE_LEAD_SILENCE_MS,
         }
+        if chosen.agents is not Agents.NONE and options.agents:
+            # Speech must not start before an agent listens: the bridge subscribes to prompt_voice
+            # only once a client does, and an utterance cut at its start is misheard.
+            source["wait_for_topic"] = "prompt_voice"
         drafts.insert(0, _Draft("file_audio_publisher", "file_audio_publisher", None, source))
     else:
         drafts.insert(0, _Draft("audio_capture", "audio_capture", "audio_io.yaml"))

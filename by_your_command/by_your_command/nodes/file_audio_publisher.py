@@ -50,13 +50,23 @@ class FileAudioPublisher(Node):
             f"waiting for {self.config.min_subscribers} subscriber(s) on 'audio'"
         )
 
+    def _waiting_for(self) -> str:
+        """The topic still missing subscribers before playing starts, or ''."""
+        if self.audio_pub.get_subscription_count() < self.config.min_subscribers:
+            return "'audio'"
+        wait_topic = self.config.wait_for_topic
+        if wait_topic and self.count_subscribers(wait_topic) < 1:
+            return repr(wait_topic)
+        return ""
+
     def _tick(self) -> None:
         now = time.monotonic()
         if self._start_monotonic is None:
-            if self.audio_pub.get_subscription_count() < self.config.min_subscribers:
+            waiting_for = self._waiting_for()
+            if waiting_for:
                 if now - self._waiting_since > WAIT_LOG_PERIOD_S:
                     self._waiting_since = now
-                    self.get_logger().info("still waiting for subscribers on 'audio'")
+                    self.get_logger().info(f"still waiting for subscribers on {waiting_for}")
                 return
             self._start_monotonic = now
             self._start_ns = int(self.get_clock().now().nanoseconds)

@@ -120,6 +120,12 @@ EMULATOR_SCRIPT = {
             "tool": {"name": "robot_command", "arguments": {"command": "sleep"}},
             "then": {"say": "Good night."},
         },  # fmt: skip
+        # "turn right" is said asleep and never reaches the agent; "wake up" wakes the VAD itself
+        {
+            "heard": "stop",
+            "tool": {"name": "robot_command", "arguments": {"command": "stop"}},
+            "then": {"say": "Stopping."},
+        },  # fmt: skip
     ],
 }
 
@@ -143,14 +149,17 @@ def test_the_cloud_demo_narrates_the_graph_with_an_emulated_provider(
     assert run.status == 0, run.explain()
     assert "an OpenAI Realtime agent" in run.out  # no sound card here: the bundled file, a WAV
     accepted = run.accepted()
-    assert accepted == {"lookup": "arm_preset", "pan@left": "arm_preset", "sleep": "behavior_command"}, (
-        run.explain()
-    )
+    assert accepted == {
+        "lookup": "arm_preset",
+        "pan@left": "arm_preset",
+        "sleep": "behavior_command",
+        "stop": "behavior_command",
+    }, run.explain()
     events = run.events()
     assert ("heard", '"what time is it"') in events and ("robot", '"It is half past eleven."') in events
-    assert [kind for kind, _ in events].count("latency") == 4, run.explain()
+    assert [kind for kind, _ in events].count("latency") == 5, run.explain()
     attention = [detail for kind, detail in events if kind == "attention"]
-    assert attention[attention.index("asleep") - 1 :][:2] == ["awake", "asleep"], run.explain()
+    assert attention[attention.index("asleep") - 1 :][:3] == ["awake", "asleep", "awake"], run.explain()
     assert audible_seconds(out_dir / "robot_said.wav") > 2.0, run.explain()
 
 
