@@ -202,7 +202,11 @@ def agent_process(
     command = python_module("by_your_command.cli.byc", "agent", "--config", str(config), *options)
     env = {"OPENAI_API_KEY": key, "BYC_BRIDGE_URL": f"ws://127.0.0.1:{bridge_port}"}
     with running_process(command, env=env) as process:
-        yield process, Output(process)
+        output = Output(process)
+        try:
+            yield process, output
+        finally:  # pytest shows captured stdout only when the test failed: the agent's own story
+            print(f"--- {config.name}:", *list(output.lines), sep="\n")
 
 
 def setup_requests(settings: dict[str, Any]) -> int:
