@@ -33,41 +33,32 @@ YAML form (`byc emulate gemini --script FILE`; every key optional):
 
 from __future__ import annotations
 
-import json
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-import yaml
+from by_your_command.emulators.script_common import (
+    TURN_KEYS,
+    CallTool,
+    Reply,
+    Say,
+    ScriptError,
+    Silence,
+    check_script_keys,
+    check_turn_keys,
+    load_yaml_script,
+    optional_int,
+    parse_reply,
+    parse_say,
+    strings,
+    turn_list,
+    typed,
+)
 
-Modality = Literal["auto", "audio", "text"]
+__all__ = ["CallTool", "Reply", "Say", "Script", "ScriptError", "Silence", "Turn", "load_script"]
+
 FrameModality = Literal["IMAGE", "VIDEO"]
-
-
-@dataclass(frozen=True)
-class Say:
-    """The model's words. `modality` auto follows the session's responseModalities; `text` sends
-    text parts even in an audio session."""
-
-    text: str
-    modality: Modality = "auto"
-
-
-@dataclass(frozen=True)
-class CallTool:
-    name: str
-    arguments: str  # a JSON object, as text
-    then: Say = field(default_factory=lambda: Say("Done."))
-
-
-@dataclass(frozen=True)
-class Silence:
-    """The model never answers (until the client interrupts)."""
-
-
-Reply = Say | CallTool | Silence
 
 
 @dataclass(frozen=True)
@@ -118,21 +109,7 @@ class Script:
             raise ValueError("frame_modality must be IMAGE or VIDEO, image_tokens >= 0")
 
 
-class ScriptError(ValueError):
-    """A script file that does not describe a script; the message names the offending place."""
-
-
-_TURN_KEYS = {
-    "heard",
-    "say",
-    "text",
-    "tool",
-    "then",
-    "silent",
-    "stall_after_ms",
-    "drop_after_ms",
-    "close_after_ms",
-}
+_TURN_KEYS = TURN_KEYS | {"stall_after_ms", "drop_after_ms", "close_after_ms"}
 _SCALARS: dict[str, type] = {
     "default_heard": str,
     "pace": float,
@@ -146,95 +123,37 @@ _SCALARS: dict[str, type] = {
     "image_tokens": int,
     "frame_modality": str,
 }
-_SCRIPT_KEYS = {"turns", "default_reply", "rejected_api_keys", "known_models", *_SCALARS}
-
-
-def _typed(value: object, kind: type, where: str) -> object:
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if kind is int and isinstance(value, bool):
-        raise ScriptError(f"{where}: expected an integer")
-    if not isinstance(value, kind):
-        raise ScriptError(f"{where}: expected {kind.__name__}, got {type(value).__name__}")
-    return value
-
-
-def _say(value: object, where: str) -> Say:
-    if isinstance(value, str):
-        return Say(value)
-    if isinstance(value, Mapping) and len(value) == 1 and set(value) <= {"say", "text"}:
-        key, text = next(iter(value.items()))
-        return Say(str(_typed(text, str, f"{where}.{key}")), "auto" if key == "say" else "text")
-    raise ScriptError(f"{where}: expected a string or {{say: ...}} / {{text: ...}}")
-
-
-def _optional_ms(raw: Mapping[str, object], key: str, where: str) -> int | None:
-    value = raw.get(key)
-    return None if value is None else int(_typed(value, int, f"{where}.{key}"))  # type: ignore[call-overload]
+_SCRIPT_KEYS = frozenset({"turns", "default_reply", "rejected_api_keys", "known_models", *_SCALARS})
 
 
 def _turn(raw: object, where: str) -> Turn:
-    if not isinstance(raw, Mapping):
-        raise ScriptError(f"{where}: expected a mapping")
-    unknown = set(raw) - _TURN_KEYS
-    if unknown:
-        raise ScriptError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(_TURN_KEYS)}")
-    kinds = [key for key in ("say", "text", "tool", "silent") if key in raw]
-    if len(kinds) != 1:
-        raise ScriptError(f"{where}: give exactly one of say, text, tool, silent (got {kinds})")
-    reply: Reply
-    if "say" in raw or "text" in raw:
-        reply = _say({kinds[0]: raw[kinds[0]]}, where)
-    elif "silent" in raw:
-        reply = Silence()
-    else:
-        tool = raw["tool"]
-        if not isinstance(tool, Mapping) or set(tool) - {"name", "arguments"} or "name" not in tool:
-            raise ScriptError(f"{where}.tool: expected {{name: ..., arguments: {{...}}}}")
-        arguments = tool.get("arguments", {})
-        if not isinstance(arguments, Mapping):
-            raise ScriptError(f"{where}.tool.arguments: expected a mapping")
-        then = _say(raw["then"], f"{where}.then") if "then" in raw else Say("Done.")
-        reply = CallTool(
-            str(_typed(tool["name"], str, f"{where}.tool.name")), json.dumps(dict(arguments)), then
-        )
-    if "then" in raw and not isinstance(reply, CallTool):
-        raise ScriptError(f"{where}: `then` only follows a tool call")
+    turn = check_turn_keys(raw, where, _TURN_KEYS)
     return Turn(
-        reply=reply,
-        heard=str(_typed(raw.get("heard", "hello robot"), str, f"{where}.heard")),
-        stall_after_ms=_optional_ms(raw, "stall_after_ms", where),
-        drop_after_ms=_optional_ms(raw, "drop_after_ms", where),
-        close_after_ms=_optional_ms(raw, "close_after_ms", where),
+        reply=parse_reply(turn, where),
+        heard=typed(turn.get("heard", "hello robot"), str, f"{where}.heard"),
+        stall_after_ms=optional_int(turn, "stall_after_ms", where),
+        drop_after_ms=optional_int(turn, "drop_after_ms", where),
+        close_after_ms=optional_int(turn, "close_after_ms", where),
     )
 
 
 def script_from_mapping(raw: object) -> Script:
-    if raw is None:
+    script = check_script_keys(raw, _SCRIPT_KEYS)
+    if script is None:
         return Script()
-    if not isinstance(raw, Mapping):
-        raise ScriptError("script: expected a mapping at the top level")
-    unknown = set(raw) - _SCRIPT_KEYS
-    if unknown:
-        raise ScriptError(f"script: unknown key(s) {sorted(unknown)}; known: {sorted(_SCRIPT_KEYS)}")
-    turns = raw.get("turns", [])
-    if not isinstance(turns, list):
-        raise ScriptError("script.turns: expected a list")
-    values: dict[str, Any] = {
-        key: None if raw[key] is None else _typed(raw[key], kind, f"script.{key}")
+    values: dict[str, object] = {
+        key: None if script[key] is None else typed(script[key], kind, f"script.{key}")
         for key, kind in _SCALARS.items()
-        if key in raw
+        if key in script
     }
-    for key in ("rejected_api_keys", "known_models"):
-        listed = raw.get(key, [])
-        if not isinstance(listed, list):
-            raise ScriptError(f"script.{key}: expected a list of strings")
-        values[key] = tuple(str(_typed(item, str, f"script.{key}[{i}]")) for i, item in enumerate(listed))
-    if "default_reply" in raw:
-        values["default_reply"] = _say(raw["default_reply"], "script.default_reply")
+    if "default_reply" in script:
+        values["default_reply"] = parse_say(script["default_reply"], "script.default_reply")
     try:
         return Script(
-            turns=tuple(_turn(turn, f"script.turns[{i}]") for i, turn in enumerate(turns)), **values
+            turns=tuple(_turn(turn, f"script.turns[{i}]") for i, turn in enumerate(turn_list(script))),
+            rejected_api_keys=strings(script, "rejected_api_keys"),
+            known_models=strings(script, "known_models"),
+            **values,  # type: ignore[arg-type]  # each value checked against its field's type above
         )
     except ScriptError:
         raise
@@ -244,11 +163,4 @@ def script_from_mapping(raw: object) -> Script:
 
 def load_script(path: Path) -> Script:
     """Read a YAML script (the format is in this module's docstring)."""
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as error:
-        raise ScriptError(f"{path}: not valid YAML: {error}") from error
-    try:
-        return script_from_mapping(raw)
-    except ScriptError as error:
-        raise ScriptError(f"{path}: {error}") from error
+    return load_yaml_script(path, script_from_mapping)

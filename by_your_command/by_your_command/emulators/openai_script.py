@@ -25,42 +25,29 @@ YAML form (`byc emulate openai --script FILE`; every key optional):
 
 from __future__ import annotations
 
-import json
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
-import yaml
+from by_your_command.emulators.script_common import (
+    TURN_KEYS,
+    CallTool,
+    Reply,
+    Say,
+    ScriptError,
+    Silence,
+    check_script_keys,
+    check_turn_keys,
+    load_yaml_script,
+    optional_int,
+    parse_reply,
+    parse_say,
+    strings,
+    turn_list,
+    typed,
+)
 
-Modality = Literal["auto", "audio", "text"]
-
-
-@dataclass(frozen=True)
-class Say:
-    """The model's words. `modality` auto follows the session/response output modalities; `text`
-    answers in text even in an audio session (a text-only reply)."""
-
-    text: str
-    modality: Modality = "auto"
-
-
-@dataclass(frozen=True)
-class CallTool:
-    """A function call; `then` answers the next response (after the client sent the tool output)."""
-
-    name: str
-    arguments: str  # JSON text, as the model writes it
-    then: Say = field(default_factory=lambda: Say("Done."))
-
-
-@dataclass(frozen=True)
-class Silence:
-    """Never answer: the response starts and then nothing comes until the client cancels it."""
-
-
-Reply = Say | CallTool | Silence
+__all__ = ["CallTool", "Reply", "Say", "Script", "ScriptError", "Silence", "Turn", "load_script"]
 
 
 @dataclass(frozen=True)
@@ -100,138 +87,52 @@ class Script:
             raise ValueError(f"session_expiry_s must be > 0, got {self.session_expiry_s}")
 
 
-class ScriptError(ValueError):
-    """A script file that does not describe a script; the message names the offending place."""
-
-
-_TURN_KEYS = {"heard", "say", "text", "tool", "then", "silent", "stall_after_ms", "drop_after_ms"}
-_SCRIPT_KEYS = {
-    "turns",
-    "default_reply",
-    "default_heard",
-    "pace",
-    "ms_per_char",
-    "delta_ms",
-    "session_expiry_s",
-    "rejected_api_keys",
-    "known_models",
-    "image_tokens",
+_TURN_KEYS = TURN_KEYS | {"stall_after_ms", "drop_after_ms"}
+_SCALARS: dict[str, type] = {
+    "default_heard": str,
+    "pace": float,
+    "ms_per_char": int,
+    "delta_ms": int,
+    "session_expiry_s": float,
+    "image_tokens": int,
 }
-
-
-def _str(value: object, where: str) -> str:
-    if not isinstance(value, str):
-        raise ScriptError(f"{where}: expected a string, got {type(value).__name__}")
-    return value
-
-
-def _int(value: object, where: str) -> int:
-    if not isinstance(value, int) or isinstance(value, bool):
-        raise ScriptError(f"{where}: expected an integer, got {type(value).__name__}")
-    return value
-
-
-def _float(value: object, where: str) -> float:
-    if not isinstance(value, (int, float)) or isinstance(value, bool):
-        raise ScriptError(f"{where}: expected a number, got {type(value).__name__}")
-    return float(value)
-
-
-def _optional_int(value: object, where: str) -> int | None:
-    return None if value is None else _int(value, where)
-
-
-def _say(value: object, where: str) -> Say:
-    if isinstance(value, str):
-        return Say(value)
-    if isinstance(value, Mapping) and set(value) <= {"say", "text"} and len(value) == 1:
-        key, text = next(iter(value.items()))
-        return Say(_str(text, f"{where}.{key}"), "auto" if key == "say" else "text")
-    raise ScriptError(f"{where}: expected a string or {{say: ...}} / {{text: ...}}")
+_SCRIPT_KEYS = frozenset({"turns", "default_reply", "rejected_api_keys", "known_models", *_SCALARS})
 
 
 def _turn(raw: object, where: str) -> Turn:
-    if not isinstance(raw, Mapping):
-        raise ScriptError(f"{where}: expected a mapping")
-    unknown = set(raw) - _TURN_KEYS
-    if unknown:
-        raise ScriptError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(_TURN_KEYS)}")
-    kinds = [key for key in ("say", "text", "tool", "silent") if key in raw]
-    if len(kinds) != 1:
-        raise ScriptError(f"{where}: give exactly one of say, text, tool, silent (got {kinds})")
-    reply: Reply
-    if "say" in raw:
-        reply = Say(_str(raw["say"], f"{where}.say"))
-    elif "text" in raw:
-        reply = Say(_str(raw["text"], f"{where}.text"), "text")
-    elif "silent" in raw:
-        reply = Silence()
-    else:
-        tool = raw["tool"]
-        if not isinstance(tool, Mapping) or set(tool) - {"name", "arguments"} or "name" not in tool:
-            raise ScriptError(f"{where}.tool: expected {{name: ..., arguments: {{...}}}}")
-        arguments = tool.get("arguments", {})
-        text = arguments if isinstance(arguments, str) else json.dumps(arguments)
-        then = _say(raw["then"], f"{where}.then") if "then" in raw else Say("Done.")
-        reply = CallTool(_str(tool["name"], f"{where}.tool.name"), text, then)
-    if "then" in raw and not isinstance(reply, CallTool):
-        raise ScriptError(f"{where}: `then` only follows a tool call")
+    turn = check_turn_keys(raw, where, _TURN_KEYS)
     return Turn(
-        reply=reply,
-        heard=_str(raw.get("heard", "hello robot"), f"{where}.heard"),
-        stall_after_ms=_optional_int(raw.get("stall_after_ms"), f"{where}.stall_after_ms"),
-        drop_after_ms=_optional_int(raw.get("drop_after_ms"), f"{where}.drop_after_ms"),
+        reply=parse_reply(turn, where),
+        heard=typed(turn.get("heard", "hello robot"), str, f"{where}.heard"),
+        stall_after_ms=optional_int(turn, "stall_after_ms", where),
+        drop_after_ms=optional_int(turn, "drop_after_ms", where),
     )
 
 
 def script_from_mapping(raw: object) -> Script:
-    if raw is None:
+    script = check_script_keys(raw, _SCRIPT_KEYS)
+    if script is None:
         return Script()
-    if not isinstance(raw, Mapping):
-        raise ScriptError("script: expected a mapping at the top level")
-    unknown = set(raw) - _SCRIPT_KEYS
-    if unknown:
-        raise ScriptError(f"script: unknown key(s) {sorted(unknown)}; known: {sorted(_SCRIPT_KEYS)}")
-    turns = raw.get("turns", [])
-    if not isinstance(turns, list):
-        raise ScriptError("script.turns: expected a list")
-    defaults = Script()
-
-    def strings(key: str) -> tuple[str, ...]:
-        values = raw.get(key, [])
-        if not isinstance(values, list):
-            raise ScriptError(f"script.{key}: expected a list of strings")
-        return tuple(_str(value, f"script.{key}[{i}]") for i, value in enumerate(values))
-
-    expiry = raw.get("session_expiry_s")
+    values: dict[str, object] = {
+        key: None if script[key] is None else typed(script[key], kind, f"script.{key}")
+        for key, kind in _SCALARS.items()
+        if key in script
+    }
+    if "default_reply" in script:
+        values["default_reply"] = parse_say(script["default_reply"], "script.default_reply")
     try:
         return Script(
-            turns=tuple(_turn(turn, f"script.turns[{i}]") for i, turn in enumerate(turns)),
-            default_reply=_say(raw["default_reply"], "script.default_reply")
-            if "default_reply" in raw
-            else defaults.default_reply,
-            default_heard=_str(raw.get("default_heard", defaults.default_heard), "script.default_heard"),
-            pace=_float(raw.get("pace", defaults.pace), "script.pace"),
-            ms_per_char=_int(raw.get("ms_per_char", defaults.ms_per_char), "script.ms_per_char"),
-            delta_ms=_int(raw.get("delta_ms", defaults.delta_ms), "script.delta_ms"),
-            session_expiry_s=None if expiry is None else _float(expiry, "script.session_expiry_s"),
-            rejected_api_keys=strings("rejected_api_keys"),
-            known_models=strings("known_models"),
-            image_tokens=_int(raw.get("image_tokens", defaults.image_tokens), "script.image_tokens"),
+            turns=tuple(_turn(turn, f"script.turns[{i}]") for i, turn in enumerate(turn_list(script))),
+            rejected_api_keys=strings(script, "rejected_api_keys"),
+            known_models=strings(script, "known_models"),
+            **values,  # type: ignore[arg-type]  # each value checked against its field's type above
         )
     except ScriptError:
         raise
-    except ValueError as error:
+    except (TypeError, ValueError) as error:
         raise ScriptError(f"script: {error}") from error
 
 
 def load_script(path: Path) -> Script:
     """Read a YAML script (the format is in this module's docstring)."""
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as error:
-        raise ScriptError(f"{path}: not valid YAML: {error}") from error
-    try:
-        return script_from_mapping(raw)
-    except ScriptError as error:
-        raise ScriptError(f"{path}: {error}") from error
+    return load_yaml_script(path, script_from_mapping)

@@ -18,8 +18,9 @@ def python(code: str) -> tuple[str, ...]:
     return (sys.executable, "-c", code)
 
 
-READY = "print('ready', flush=True); import time; time.sleep(600)"
-STUBBORN = python(f"import signal; signal.signal(signal.SIGTERM, signal.SIG_IGN); {READY}")
+# A child that says it is ready, then waits for a signal (no timer: it lives until it is stopped).
+READY = "import signal; print('ready', flush=True)\nwhile True: signal.pause()"
+STUBBORN = python(f"import signal; signal.signal(signal.SIGTERM, signal.SIG_IGN)\n{READY}")
 POLITE = python(READY)
 QUITTER = python("import sys; sys.stdout.write('bye without newline'); sys.stdout.flush()")
 
