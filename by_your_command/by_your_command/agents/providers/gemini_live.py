@@ -43,6 +43,7 @@ from by_your_command.agents.provider import (
     SessionSetup,
     ToolSpec,
 )
+from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.gemini_errors import (
     MISSING_KEY_MESSAGE,
     handshake_error,
@@ -58,7 +59,6 @@ INPUT_RATE = 16_000  # Gemini Live's native input rate
 INPUT_MIME = f"audio/pcm;rate={INPUT_RATE}"
 DEFAULT_API_VERSION = "v1beta"  # the Live API's documented version (google-genai 3.x defaults to v1)
 MAX_IMAGE_BYTES = 7 * 1024 * 1024
-_END = object()  # end-of-events marker in the queue
 _QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
 _QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)  # websockets logs handshake headers (the key) at DEBUG
 _MEDIA_RESOLUTION = {
@@ -125,7 +125,7 @@ class GeminiLiveProvider:
         self._handles = resumption or ResumptionHandles()
         self._stack = contextlib.AsyncExitStack()
         self._session: Any = None  # genai.live.AsyncSession (typed Any: 2.33 and 3.x differ)
-        self._queue: asyncio.Queue[object] = asyncio.Queue(self.config.event_queue_size)
+        self._events = EventStream(self.config.event_queue_size)
         self._translator = EventTranslator(audio_out=True, text_from_transcription=False)
         self._reader: asyncio.Task[None] | None = None
         self._closed = False
@@ -253,7 +253,7 @@ class GeminiLiveProvider:
             self._reader.cancel()  # it may wait for room in a full queue nobody reads any more
             await asyncio.gather(self._reader, return_exceptions=True)
         else:
-            self._end_events()
+            self._events.end()
         self._session = None
         with contextlib.suppress(Exception):
             await self._stack.aclose()  # closes the socket (before any resume: sip-to-ai#14)
@@ -285,7 +285,7 @@ class GeminiLiveProvider:
     async def end_of_turn(self) -> None:
         session = self._live()
         if not self._in_activity or not self._turn_audio_bytes:
-            await self._queue.put(ProviderError("empty_turn", "utterance without audio not sent"))
+            await self._events.put(ProviderError("empty_turn", "utterance without audio not sent"))
             return
         async with self._closing_on_failure():
             await session.send_realtime_input(activity_end=types.ActivityEnd())
@@ -341,13 +341,8 @@ class GeminiLiveProvider:
             raise ProviderClosed(f"the Gemini Live session closed: {closed}") from None
 
     # ---- output -----------------------------------------------------------------------------
-    async def events(self) -> AsyncIterator[ProviderEvent]:
-        while True:
-            event = await self._queue.get()
-            if event is _END:
-                self._queue.put_nowait(_END)  # later readers end too
-                return
-            yield event  # type: ignore[misc]  # the queue holds ProviderEvents and _END only
+    def events(self) -> AsyncIterator[ProviderEvent]:
+        return self._events.__aiter__()
 
     async def _read(self, session: Any) -> None:
         try:
@@ -356,7 +351,7 @@ class GeminiLiveProvider:
                     async for message in session.receive():
                         await self._on_message(message)
                 except ValueError as error:  # an unreadable message: report, keep the session
-                    await self._queue.put(
+                    await self._events.put(
                         ProviderError("invalid_server_message", f"unreadable message: {error}")
                     )
         except errors.APIError as closed:
@@ -364,30 +359,21 @@ class GeminiLiveProvider:
             report = session_closed(closed.code, reason)
             if report is not None:
                 log.info("Gemini closed the session: %s %s", closed.code, reason)
-                self._put_last(report)
+                self._events.put_last(report)
         except ConnectionClosed:
-            self._put_last(ProviderError("server_closed", "the Gemini connection was lost"))
+            self._events.put_last(ProviderError("server_closed", "the Gemini connection was lost"))
         finally:
             self._closed = True
             for event in self._translator.connection_lost():
-                self._put_last(event)
-            self._end_events()
+                self._events.put_last(event)
+            self._events.end()
 
     async def _on_message(self, message: types.LiveServerMessage) -> None:
         update = message.session_resumption_update
         if update is not None and update.resumable and update.new_handle:
             self._handles.keep(update.new_handle)
         for event in self._translator.translate(message):
-            await self._queue.put(event)
-
-    def _put_last(self, event: object) -> None:
-        """Queue without waiting (the session is over): drop the oldest unread event if full."""
-        if self._queue.full():
-            self._queue.get_nowait()
-        self._queue.put_nowait(event)
-
-    def _end_events(self) -> None:
-        self._put_last(_END)
+            await self._events.put(event)
 
 
 def _history(history: Sequence[HistoryTurn]) -> list[types.Content]:

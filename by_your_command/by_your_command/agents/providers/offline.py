@@ -38,6 +38,7 @@ from by_your_command.agents.events import (
     UserTranscript,
 )
 from by_your_command.agents.provider import ProviderClosed, ProviderFailure, SessionSetup
+from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.offline_config import OfflineConfig
 from by_your_command.agents.providers.offline_engine import Engine, LocalEngine
 from by_your_command.agents.providers.offline_replies import parse_tool_result, refusal
@@ -54,7 +55,6 @@ MAX_SESSION_S = 7 * 24 * 3600.0  # nothing to rotate: the engine is local
 MAX_REPLY_S = 60.0  # synthesized audio beyond this is cut (reply texts are short and bounded)
 _IDS_KEPT = 64  # interrupted replies and open tool calls remembered (bounded, whatever comes)
 _MAX_JOBS = 16
-_END = object()
 T = TypeVar("T")
 
 
@@ -121,7 +121,7 @@ class OfflineProvider:
         self._dropped = 0  # bytes of the current turn beyond the limit
         # The runtime sends one turn at a time; the bound only stops a caller that does not.
         self._jobs: asyncio.Queue[_Job] = asyncio.Queue(_MAX_JOBS)
-        self._events: asyncio.Queue[object] = asyncio.Queue(self.config.event_queue_size)
+        self._events = EventStream(self.config.event_queue_size)
         self._worker: asyncio.Task[None] | None = None
         self._cancelled: deque[str] = deque(maxlen=_IDS_KEPT)
         self._speaking = ""  # the response whose audio is being emitted
@@ -152,9 +152,7 @@ class OfflineProvider:
         if self._worker is not None:
             self._worker.cancel()
             await asyncio.gather(self._worker, return_exceptions=True)
-        if self._events.full():
-            self._events.get_nowait()  # nobody reads any more: make room for the end marker
-        self._events.put_nowait(_END)
+        self._events.end()
         log.info("offline session closed: %s", self.stats)
 
     def _live(self) -> SessionSetup:
@@ -208,14 +206,10 @@ class OfflineProvider:
 
     # ---- output -----------------------------------------------------------------------------
     async def events(self) -> AsyncIterator[ProviderEvent]:
-        while True:
-            event = await self._events.get()
-            if event is _END:
-                self._events.put_nowait(_END)  # later readers end too
-                return
+        async for event in self._events:
             if isinstance(event, AssistantAudio) and event.response_id in self._cancelled:
-                continue
-            yield event  # type: ignore[misc]  # the queue holds ProviderEvents and _END only
+                continue  # a cut reply's audio still queued
+            yield event
 
     async def _emit(self, event: ProviderEvent) -> None:
         await self._events.put(event)

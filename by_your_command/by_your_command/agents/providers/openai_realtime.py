@@ -42,6 +42,7 @@ from by_your_command.agents.provider import (
     SessionSetup,
     ToolSpec,
 )
+from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.openai_errors import handshake_error, provider_error
 from by_your_command.agents.providers.openai_events import BYTES_PER_MS, SAMPLE_RATE, EventTranslator
 
@@ -51,7 +52,6 @@ MIN_COMMIT_MS = 100  # the server refuses shorter commits (input_audio_buffer_co
 MAX_SESSION_S = 3600.0  # GA sessions end after 60 minutes (session_expired)
 MAX_IMAGE_BYTES = 10 * 1024 * 1024  # an event carries at most 15 MiB, base64 inflates by 4/3
 MAX_SERVER_EVENT_BYTES = 16 * 1024 * 1024  # bounded memory: server events are small deltas
-_END = object()  # end-of-events marker in the queue
 _QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
 _QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
 
@@ -89,7 +89,7 @@ class OpenAIRealtimeProvider:
         self.config = config or OpenAIRealtimeConfig()
         self._api_key = api_key
         self._connection: AsyncRealtimeConnection | None = None
-        self._queue: asyncio.Queue[object] = asyncio.Queue(self.config.event_queue_size)
+        self._events = EventStream(self.config.event_queue_size)
         self._translator = EventTranslator()
         self._reader: asyncio.Task[None] | None = None
         self._closed = False
@@ -225,7 +225,7 @@ class OpenAIRealtimeProvider:
             self._reader.cancel()  # it may wait for room in a full queue nobody reads any more
             await asyncio.gather(self._reader, return_exceptions=True)
         else:
-            self._end_events()
+            self._events.end()
         if self._client is not None:
             with contextlib.suppress(Exception):
                 await self._client.close()  # its HTTP pool, unused by the WebSocket but opened
@@ -255,7 +255,7 @@ class OpenAIRealtimeProvider:
                 if self._buffered_bytes:
                     await connection.input_audio_buffer.clear()
             self._buffered_bytes = 0
-            await self._queue.put(
+            await self._events.put(
                 ProviderError(
                     "input_audio_buffer_commit_empty",
                     f"utterance of {buffered_ms} ms not sent: the API needs at least {MIN_COMMIT_MS} ms",
@@ -344,13 +344,8 @@ class OpenAIRealtimeProvider:
             raise ProviderClosed(f"the OpenAI Realtime session closed: {closed}") from None
 
     # ---- output -----------------------------------------------------------------------------
-    async def events(self) -> AsyncIterator[ProviderEvent]:
-        while True:
-            event = await self._queue.get()
-            if event is _END:
-                self._queue.put_nowait(_END)  # later readers end too
-                return
-            yield event  # type: ignore[misc]  # the queue holds ProviderEvents and _END only
+    def events(self) -> AsyncIterator[ProviderEvent]:
+        return self._events.__aiter__()
 
     async def _read(self, connection: AsyncRealtimeConnection) -> None:
         try:
@@ -360,18 +355,20 @@ class OpenAIRealtimeProvider:
                 except ConnectionClosed:
                     break
                 except ValueError as error:  # not JSON / not an event: report, keep the session
-                    await self._queue.put(ProviderError("invalid_server_event", f"unreadable event: {error}"))
+                    await self._events.put(
+                        ProviderError("invalid_server_event", f"unreadable event: {error}")
+                    )
                     continue
                 for translated in self._translator.translate(event):
-                    await self._queue.put(translated)
+                    await self._events.put(translated)
                 await self._after(event)
         except ProviderClosed:
             pass
         finally:
             self._closed = True
             for translated in self._translator.connection_lost():
-                self._put_last(translated)
-            self._end_events()
+                self._events.put_last(translated)
+            self._events.end()
 
     async def _after(self, event: object) -> None:
         """Bookkeeping for reply requests: a deferred reply is created when the running one is done."""
@@ -388,15 +385,6 @@ class OpenAIRealtimeProvider:
                 if self._reply_deferred:
                     self._reply_deferred = False
                     await self._request_reply()
-
-    def _put_last(self, event: object) -> None:
-        """Queue without waiting (the session is over): drop the oldest unread event if full."""
-        if self._queue.full():
-            self._queue.get_nowait()
-        self._queue.put_nowait(event)
-
-    def _end_events(self) -> None:
-        self._put_last(_END)
 
 
 def _tools(tools: Sequence[ToolSpec]) -> RealtimeToolsConfigParam:
