@@ -36,7 +36,7 @@ from by_your_command.graph.params import GraphError
 from by_your_command.graph.profiles import PROFILES, build_graph
 
 EXIT_OK, EXIT_FAILED, EXIT_SETUP = 0, 1, 2
-STOP_TIMEOUT_S = 10.0  # byc up's SIGTERM -> SIGKILL; the demo waits a little longer for it
+STOP_TIMEOUT_S = 20.0  # byc up's SIGTERM -> SIGKILL; the demo waits a little longer for it
 STARTUP_ALLOWANCE_S = 60.0  # file-driven deadline: the file's length plus this
 
 

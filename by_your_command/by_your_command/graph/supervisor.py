@@ -28,7 +28,9 @@ _SELF = "byc up"
 
 @dataclass(frozen=True)
 class SupervisorConfig:
-    stop_timeout_s: float = 10.0  # SIGTERM -> SIGKILL (run_node needs up to ~7 s when a callback hangs)
+    # SIGTERM -> SIGKILL. run_node's own budget is 5 s to stop the executor + 2 s for acks + the
+    # node's teardown (the VAD's wake worker: 2 s): on a loaded machine that passed 10 s.
+    stop_timeout_s: float = 20.0
     poll_interval_s: float = 0.2  # also how often exits are checked when no output arrives
 
 

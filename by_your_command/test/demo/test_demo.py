@@ -85,7 +85,8 @@ def test_offline_demo_routes_the_spoken_commands_and_ignores_the_one_said_asleep
     for kind, detail in run.events():
         if kind == "attention":
             asleep = detail == "asleep"
-        elif kind == "command" and asleep:
+        elif kind == "command" and asleep and not detail.startswith("sleep ->"):
+            # (the verdict of `sleep` itself may arrive after the state it caused: no order across topics)
             assert not _ACCEPTED.match(detail), f"routed while asleep: {detail}\n{run.explain()}"
     # The robot answered out loud: more speech than a few short acknowledgements.
     heard = [detail for kind, detail in run.events() if kind == "heard"]
