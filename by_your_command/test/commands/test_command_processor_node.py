@@ -99,8 +99,8 @@ def test_commands_are_routed_and_every_verdict_is_published(probe: Probe, ros_na
             probe.spin()
             return len(probe.verdicts()) >= 6
 
-        wait_for(all_verdicts, timeout=10, what="6 verdicts")
-        wait_for(lambda: probe.spin() or len(probe.data("wake_cmd")) >= 2, timeout=10, what="wake_cmd")
+        wait_for(all_verdicts, timeout=30, what="6 verdicts")
+        wait_for(lambda: probe.spin() or len(probe.data("wake_cmd")) >= 2, timeout=30, what="wake_cmd")
 
     assert probe.data("arm_preset") == ["pan@left", "tenhut"]
     assert probe.data("behavior_command") == ["follow@person", "sleep", "wake"]
@@ -132,7 +132,7 @@ def test_safety_layer_in_the_graph(probe: Probe, ros_namespace: str) -> None:
             probe.spin()
             return len(probe.verdicts()) >= 5
 
-        wait_for(five_verdicts, timeout=10, what="5 verdicts")
+        wait_for(five_verdicts, timeout=30, what="5 verdicts")
     assert [(v.command, v.accepted) for v in probe.verdicts()] == [
         ("stop", True),
         ("stop", True),
@@ -160,7 +160,7 @@ def test_grunt1_example_config_publishes_on_absolute_robot_topics(probe: Probe, 
             probe.spin()
             return bool(probe.data("arm")) and bool(probe.data("behavior"))
 
-        wait_for(routed, timeout=10, what="/grunt1 outputs")
+        wait_for(routed, timeout=30, what="/grunt1 outputs")
     assert probe.data("arm") == ["lookout"]
     assert probe.data("behavior") == ["track@cup"]
 
@@ -191,7 +191,7 @@ def test_oversize_junk_gets_one_verdict_each_and_a_following_stop_is_answered(
             probe.send(message)
         probe.send("stop")
         verdicts = wait_verdicts(probe, process, len(junk) + 1)
-        wait_for(lambda: probe.spin() or probe.data("behavior_command"), timeout=10, what="stop routed")
+        wait_for(lambda: probe.spin() or probe.data("behavior_command"), timeout=30, what="stop routed")
     for verdict, message in zip(verdicts[: len(junk)], junk, strict=True):
         assert not verdict.accepted and verdict.topic == ""
         assert verdict.reason == f"message of {len(message)} characters is longer than 4096: not examined"
@@ -216,7 +216,7 @@ def test_a_stop_inside_a_long_message_is_routed_first(probe: Probe, ros_namespac
         probe.send(huge_message)
         probe.send("pan@left, stop, tenhut")
         verdicts = wait_verdicts(probe, process, 22 + 2 + 3)
-        wait_for(lambda: probe.spin() or len(probe.data("behavior_command")) >= 3, timeout=10, what="stops")
+        wait_for(lambda: probe.spin() or len(probe.data("behavior_command")) >= 3, timeout=30, what="stops")
     first, second, third = verdicts[:22], verdicts[22:24], verdicts[24:]
     assert (first[0].command, first[0].accepted) == ("stop", True)  # before anything else
     assert (first[1].command, first[1].accepted, first[1].reason) == ("reach", False, SUPERSEDED)
