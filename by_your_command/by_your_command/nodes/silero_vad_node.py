@@ -63,6 +63,7 @@ class SileroVadNode(Node):
         self.blocks_rejected = 0  # malformed
         self.publish_failures = 0
         self.utterances = 0
+        self.unheard_utterances = 0  # published while nothing subscribed to prompt_voice: lost
         self._reported: tuple[int, ...] = ()
         self._last_audio = time.monotonic()
         self._last_report = time.monotonic()
@@ -211,10 +212,20 @@ class SileroVadNode(Node):
                     self.activity_pub.publish(Bool(data=event.active))
                     self.utterances += int(event.active)
                 elif isinstance(event, UtteranceChunk):
+                    if event.chunk_sequence == 0 and self.voice_pub.get_subscription_count() == 0:
+                        self._unheard(event)
                     self.voice_pub.publish(self._utterance_msg(event))
             except Exception as error:  # rclpy raises RCLError under overload: count, never crash
                 self.publish_failures += 1
                 self.get_logger().error(f"publish failed ({self.publish_failures} so far): {error}")
+
+    def _unheard(self, chunk: UtteranceChunk) -> None:
+        # DDS drops a message nobody subscribes to without a word: say it here, where it is known.
+        self.unheard_utterances += 1
+        self.get_logger().warning(
+            f"utterance {chunk.utterance_id} is lost: nothing subscribes to prompt_voice (no bridge or "
+            f"agent listening; {self.unheard_utterances} lost so far)"
+        )
 
     @staticmethod
     def _utterance_msg(chunk: UtteranceChunk) -> AudioDataUtterance:
@@ -247,6 +258,7 @@ class SileroVadNode(Node):
             self.blocks_rejected,
             self.publish_failures,
             self.detector.discontinuities,
+            self.unheard_utterances,
             self._wake_worker.decoded if self._wake_worker else 0,
             self._wake_worker.errors if self._wake_worker else 0,
         )
@@ -255,6 +267,7 @@ class SileroVadNode(Node):
             self.get_logger().info(
                 f"frames={current[0]} utterances={current[1]} ignored_blocks={current[2]} "
                 f"rejected_blocks={current[3]} publish_failures={current[4]} stream_restarts={current[5]} "
+                f"unheard_utterances={current[6]} "
                 f"resampled_blocks={self.detector.resampled_blocks}{self._spoken_wake_stats()}"
             )
 
