@@ -27,6 +27,8 @@ EXECUTABLES = {
     "simple_audio_player": "by_your_command.nodes.simple_audio_player:main",
     "oai_realtime_agent": "by_your_command.cli.agent:main_realtime",
     "oai_command_agent": "by_your_command.cli.agent:main_command",
+    "gemini_live_agent": "by_your_command.cli.agent:main_gemini",
+    "gemini_command_agent": "by_your_command.cli.agent:main_gemini_command",
 }
 
 # Ranges for users; the exact versions CI tests are pinned in requirements/*.txt (the lock).

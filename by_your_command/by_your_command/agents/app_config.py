@@ -22,12 +22,15 @@ import yaml
 
 from by_your_command.agents.config import AgentConfig, AgentConfigError, parse_agent_config
 from by_your_command.prompts.locate import ConfigFileNotFound, find_config_file
+from by_your_command.prompts.located_yaml import BoundedSafeLoader
 
 DEFAULT_BRIDGE_URL = "ws://127.0.0.1:9090"
 BRIDGE_URL_ENV = "BYC_BRIDGE_URL"
 BRIDGE_TOKEN_ENV = "BYC_BRIDGE_TOKEN"
 DEFAULT_PROVIDER = "openai"
 TOKEN_HINT = "the variable named by bridge.token_env"
+MAX_CONFIG_BYTES = 1 << 20  # config files are a few KB
+MAX_CONFIG_VALUES = 100_000  # counted with YAML aliases expanded; a real file has a few hundred
 
 
 @dataclass(frozen=True)
@@ -65,9 +68,20 @@ def locate_config(name: str) -> Path:
 
 def read_config_file(path: Path) -> dict[str, Any]:
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        with path.open("rb") as file:
+            raw = file.read(MAX_CONFIG_BYTES + 1)
+        if len(raw) > MAX_CONFIG_BYTES:
+            raise AgentConfigError([f"larger than {MAX_CONFIG_BYTES} bytes: not a config file"], str(path))
+        data = yaml.load(raw.decode("utf-8"), Loader=BoundedSafeLoader)  # noqa: S506 - a SafeLoader
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
         raise AgentConfigError([f"cannot read: {' '.join(str(error).split())}"], str(path)) from None
+    except RecursionError:  # PyYAML composes recursively: "[[[[...]]]]" a few hundred deep
+        raise AgentConfigError(["cannot read: nested too deeply"], str(path)) from None
+    if _more_values_than(data, MAX_CONFIG_VALUES):
+        # Ten anchors each naming the previous one ten times are 10^10 values once copied.
+        raise AgentConfigError(
+            [f"more than {MAX_CONFIG_VALUES} values once YAML aliases are expanded"], str(path)
+        )
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -86,8 +100,8 @@ def apply_overrides(data: Mapping[str, Any], assignments: Sequence[str], source:
             problems.append(f"--set {assignment!r}: expected key=value (nested keys with dots)")
             continue
         try:
-            value = yaml.safe_load(text) if text.strip() else ""
-        except yaml.YAMLError:
+            value = yaml.load(text, Loader=BoundedSafeLoader) if text.strip() else ""  # noqa: S506
+        except (yaml.YAMLError, RecursionError):
             value = text  # not YAML: take it as the string typed
         target = result
         for part in path[:-1]:
@@ -213,6 +227,21 @@ def _is_env_name(name: str, allow_empty: bool = False) -> bool:
     if not name:
         return allow_empty
     return name.replace("_", "a").isalnum() and name.isascii() and not name[0].isdigit()
+
+
+def _more_values_than(data: Any, limit: int) -> bool:
+    """Counts values as the copies below will see them (an alias counts each time it is used)."""
+    stack, count = [data], 0
+    while stack:
+        item = stack.pop()
+        count += 1
+        if count > limit:
+            return True
+        if isinstance(item, Mapping):
+            stack.extend(item.values())
+        elif isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return False
 
 
 def _copy(data: Mapping[str, Any]) -> dict[str, Any]:

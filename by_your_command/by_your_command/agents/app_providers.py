@@ -2,12 +2,15 @@
 
 `openai`, `gemini` and `offline` (no key). The API key is read from the environment once, at
 start (a missing key is a config error, not a failure at the first utterance), and handed to the
-provider object; it is never put in a message.
+provider object; it is never put in a message. A kind may accept several variables: Gemini takes
+GOOGLE_API_KEY, else GEMINI_API_KEY (google-genai's own precedence, so every program on the machine
+picks the same key); `provider.api_key_env` names the one variable to read instead.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -16,6 +19,8 @@ from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 from by_your_command.agents.app_config import ProviderChoice
 from by_your_command.agents.config import AgentConfigError
 from by_your_command.agents.provider import ProviderFactory
+
+log = logging.getLogger(__name__)
 
 # Header names that carry credentials: they come from the environment, never from a file.
 _SECRET_HEADERS = frozenset({"authorization", "api-key", "x-api-key", "proxy-authorization", "cookie"})
@@ -34,8 +39,23 @@ class BuiltProvider:
 
 @dataclass(frozen=True)
 class ProviderKind:
-    default_key_env: str  # "" = this provider needs no key
+    key_envs: tuple[str, ...]  # variables that may hold the key, the first set one wins; () = no key
     build: Callable[[Mapping[str, Any], str], BuiltProvider]  # (settings, key) → factory
+
+
+def find_key(key_envs: tuple[str, ...], environ: Mapping[str, str]) -> tuple[str, str]:
+    """(variable, key) of the first variable set (blank counts as unset); ("", "") when none is."""
+    for name in key_envs:
+        key = environ.get(name, "").strip()
+        if key:
+            return name, key
+    return "", ""
+
+
+def _not_set(key_envs: tuple[str, ...]) -> str:
+    if len(key_envs) == 1:
+        return f"{key_envs[0]} is not set"
+    return f"neither {', '.join(key_envs[:-1])} nor {key_envs[-1]} is set"
 
 
 def build_provider(choice: ProviderChoice, environ: Mapping[str, str]) -> BuiltProvider:
@@ -45,17 +65,22 @@ def build_provider(choice: ProviderChoice, environ: Mapping[str, str]) -> BuiltP
         raise AgentConfigError(
             [f"provider.type: must be one of {sorted(PROVIDER_KINDS)}, got {choice.type!r}"]
         )
-    key_env = choice.api_key_env or kind.default_key_env
-    key = environ.get(key_env, "").strip() if key_env else ""
+    key_envs = (choice.api_key_env,) if choice.api_key_env else kind.key_envs
+    key_env, key = find_key(key_envs, environ)
+    ignored = [name for name in key_envs if name != key_env and environ.get(name, "").strip()]
+    if key and ignored:
+        log.warning(
+            "%s is used for the %s key; %s is set too and ignored", key_env, choice.type, ", ".join(ignored)
+        )
     problems = []
     built = None
     try:
         built = kind.build(choice.settings, key)
     except AgentConfigError as error:
         problems.extend(error.problems)
-    if key_env and not key:
+    if key_envs and not key:
         where = f"the {choice.type} API key comes from the environment, never from files"
-        problems.append(f"{key_env} is not set: {where}")
+        problems.append(f"{_not_set(key_envs)}: {where}")
     if problems:
         raise AgentConfigError(problems)
     assert built is not None
@@ -132,9 +157,10 @@ def _build_gemini(settings: Mapping[str, Any], key: str) -> BuiltProvider:
 
 
 PROVIDER_KINDS: dict[str, ProviderKind] = {
-    "openai": ProviderKind("OPENAI_API_KEY", _build_openai),
-    "gemini": ProviderKind("GEMINI_API_KEY", _build_gemini),
-    "offline": ProviderKind("", _build_offline),
+    "openai": ProviderKind(("OPENAI_API_KEY",), _build_openai),
+    # google-genai's order: GOOGLE_API_KEY wins when both are set (the provider logs which is used)
+    "gemini": ProviderKind(("GOOGLE_API_KEY", "GEMINI_API_KEY"), _build_gemini),
+    "offline": ProviderKind((), _build_offline),
 }
 
 

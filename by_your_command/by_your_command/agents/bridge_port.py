@@ -17,6 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from by_your_command.agents.config import AgentConfig, ContextSource
+from by_your_command.agents.detections import detection2d_array, detections_json
 from by_your_command.agents.inputs import (
     Attention,
     AttentionChanged,
@@ -32,7 +33,7 @@ from by_your_command.agents.inputs import (
     VoiceActivity,
 )
 from by_your_command.agents.metrics import MetricsRecord
-from by_your_command.agents.port import PortClosed, PortUnavailable, VoiceChunk
+from by_your_command.agents.port import DetectionReport, PortClosed, PortUnavailable, VoiceChunk
 from by_your_command.agents.provider import Role
 from by_your_command.bridge.client_messages import BridgeUnavailable, ClientStopped, Delivery, Lost
 
@@ -44,6 +45,7 @@ VERDICT = "by_your_command_msgs/msg/CommandVerdict"
 STRING = "std_msgs/msg/String"
 BOOL = "std_msgs/msg/Bool"
 IMAGE = "sensor_msgs/msg/CompressedImage"
+DETECTION_2D_ARRAY = "vision_msgs/msg/Detection2DArray"
 
 
 class BridgeLike(Protocol):
@@ -116,10 +118,16 @@ def _attention(msg: dict[str, Any]) -> RobotInput:
 def _image(msg: dict[str, Any]) -> RobotInput:
     if "jpeg" not in _field(msg, "format", str, "").lower():
         raise BadMessage("format: only jpeg frames are forwarded to providers")
+    header = _field(msg, "header", dict, {})
+    stamp = _field(header, "stamp", dict, {})
+    sec, nanosec = _field(stamp, "sec", int, 0), _field(stamp, "nanosec", int, 0)
+    if not 0 <= nanosec < 1_000_000_000:
+        raise BadMessage("header.stamp.nanosec: must be 0..999999999")
     try:
-        return CameraFrame(base64.b64decode(_field(msg, "data", str), validate=True))
+        jpeg = base64.b64decode(_field(msg, "data", str), validate=True)
     except binascii.Error:
         raise BadMessage("data: invalid base64") from None
+    return CameraFrame(jpeg, sec + nanosec / 1e9, _field(header, "frame_id", str, "")[:256])
 
 
 def _verdict(msg: dict[str, Any]) -> RobotInput:
@@ -167,6 +175,9 @@ class BridgePort:
         if config.context_source is ContextSource.OWN:  # only the authority publishes the transcript
             self._outputs[topics.response_text] = STRING
             self._outputs[topics.prompt_transcript] = STRING
+        if config.detections:
+            self._outputs[topics.detections] = STRING
+            self._outputs[topics.detections_2d] = DETECTION_2D_ARRAY
         self._outputs.pop("", None)
 
     def _add(self, topic: str, msg_type: str, convert: Callable[[dict[str, Any]], RobotInput]) -> None:
@@ -234,3 +245,11 @@ class BridgePort:
 
     async def publish_metrics(self, record: MetricsRecord) -> None:
         await self._publish(self._topics.metrics, {"data": json.dumps(record.as_dict())})
+
+    async def publish_detections(self, detections: DetectionReport) -> None:
+        payload = detections_json(detections.detections, detections.frame, detections.agent_id)
+        await self._publish(self._topics.detections, {"data": json.dumps(payload)})
+        frame = detections.frame
+        if self._topics.detections_2d and frame is not None and frame.width > 0 and frame.height > 0:
+            # pixel boxes need the frame's size: without it only the JSON topic carries them
+            await self._publish(self._topics.detections_2d, detection2d_array(detections.detections, frame))

@@ -54,6 +54,10 @@ class Topics:
     prompt_transcript: str = "prompt_transcript"
     interruption_signal: str = "interruption_signal"
     metrics: str = "agent_metrics"
+    detections: str = "detections"  # JSON boxes (docs/gemini.md), when `detections` is on
+    # vision_msgs/msg/Detection2DArray, when `detections` is on: off by default, because the bridge
+    # can only publish it where vision_msgs is installed (its config/bridge.yaml entry is commented)
+    detections_2d: str = ""
 
 
 @dataclass(frozen=True)
@@ -90,6 +94,9 @@ class AgentConfig:
     # tools, camera
     tool_verdict_timeout_s: float = 3.0
     max_frame_age_s: float = 5.0
+    # object detections (Gemini's box_2d JSON) in the model's text are published on topics.detections
+    # (never on response_cmd, whatever this says); off: they are counted and dropped
+    detections: bool = False
     topics: Topics = field(default_factory=Topics)
 
     @property

@@ -94,6 +94,14 @@ class ToolCall:
 
 
 @dataclass(frozen=True)
+class ToolCallCancelled:
+    """The provider withdrew these calls (Gemini's toolCallCancellation, sent when the user cuts in):
+    no result may be sent for them, and a command not yet routed to the robot is not routed."""
+
+    call_ids: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class ResponseDone:
     response_id: str
     status: ResponseStatus
@@ -125,6 +133,9 @@ class ProviderError:
     message: str
     fatal: bool = False
     retry_after_s: float | None = None
+    # The input of the turn in flight was not accepted (e.g. audio too short to commit): no reply
+    # will come, so that turn fails now instead of holding every later turn until the reply timeout.
+    refuses_turn: bool = False
 
 
 ProviderEvent = (
@@ -133,6 +144,7 @@ ProviderEvent = (
     | AssistantTranscript
     | AssistantText
     | ToolCall
+    | ToolCallCancelled
     | ResponseDone
     | Interrupted
     | SessionEnding

@@ -61,6 +61,8 @@ class AttentionChanged:
 @dataclass(frozen=True)
 class CameraFrame:
     jpeg: bytes
+    stamp: float = 0.0  # the image's header stamp, seconds (detections carry it)
+    frame_id: str = ""
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ class TurnMetrics:
     first_audio_ms: float | None  # end of user speech (end marker / text) → first reply audio published
     reply_ms: float  # end of user speech → reply finished
     usage: Usage = field(default_factory=Usage)
+    provider: str = ""  # Provider.name (monitors price the tokens per provider)
 
     def as_dict(self) -> dict[str, Any]:
         return {"record": "turn", **_flatten(self)}
@@ -33,6 +34,7 @@ class SessionMetrics:
     turns: int
     close_reason: str
     usage: Usage = field(default_factory=Usage)
+    provider: str = ""  # Provider.name (monitors price the tokens per provider)
 
     def as_dict(self) -> dict[str, Any]:
         return {"record": "session", **_flatten(self)}
@@ -76,6 +78,13 @@ class Counters:
     sessions_failed: int = 0  # sessions that died or were recycled after a failure
     tool_calls: int = 0
     tool_timeouts: int = 0
+    tool_calls_cancelled: int = (
+        0  # withdrawn by the provider: no result sent (commands_withheld: never routed)
+    )
+    commands_withheld: int = 0
+    detections_published: int = 0  # replies whose boxes went out on `detections`
+    detections_dropped: int = 0  # boxes found but not published (agent without `detections: true`)
+    detections_refused: int = 0  # entries that were no usable box (bad JSON, NaN, empty box, over the limits)
     internal_errors: int = 0
 
     def snapshot(self) -> dict[str, int]:

@@ -11,6 +11,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import Protocol
 
+from by_your_command.agents.detections import Detection, FrameInfo
 from by_your_command.agents.inputs import RobotInput
 from by_your_command.agents.metrics import MetricsRecord
 
@@ -34,6 +35,15 @@ class VoiceChunk:
     stamp: float = 0.0  # wall-clock seconds of the first sample (synthesis time)
 
 
+@dataclass(frozen=True)
+class DetectionReport:
+    """Object detections from one reply, with the frame the model was shown (None: no frame)."""
+
+    agent_id: str
+    detections: tuple[Detection, ...]
+    frame: FrameInfo | None
+
+
 class RobotPort(Protocol):
     async def publish_voice(self, chunk: VoiceChunk) -> None: ...
 
@@ -50,6 +60,9 @@ class RobotPort(Protocol):
         """`prompt_transcript`: what the user said."""
 
     async def publish_metrics(self, record: MetricsRecord) -> None: ...
+
+    async def publish_detections(self, detections: DetectionReport) -> None:
+        """`detections`: boxes the model found, in pixels of the frame it was shown (JSON)."""
 
     def inputs(self) -> AsyncIterator[RobotInput]:
         """Inputs in the order the robot side delivers them; ends when the port closes."""

@@ -62,28 +62,56 @@ class PendingCall:
 
 
 class PendingVerdicts:
-    """Tool calls waiting for their verdict, matched by the command's text (oldest first)."""
+    """Tool calls waiting for their verdict, matched by the command's text (oldest first).
+
+    A call is added before its command is routed (`routed` marks it sent to the robot): the runtime
+    routes once the provider events queued behind the call are handled, so a cancellation that
+    came with the call withdraws a command the robot never saw. Only routed calls match verdicts.
+    """
 
     def __init__(self) -> None:
         self._calls: list[PendingCall] = []
+        self._unrouted: set[str] = set()
 
     def add(self, call_id: str, command: str, deadline: float) -> None:
         self._calls.append(PendingCall(call_id, command, deadline))
+        self._unrouted.add(call_id)
+
+    def unrouted(self) -> list[PendingCall]:
+        return [call for call in self._calls if call.call_id in self._unrouted]
+
+    def routed(self, call_id: str) -> None:
+        self._unrouted.discard(call_id)
 
     def match(self, verdict: CommandStatus) -> PendingCall | None:
         for call in self._calls:
-            if _key(call.command) == _key(verdict.raw):
-                self._calls.remove(call)
+            if call.call_id not in self._unrouted and _key(call.command) == _key(verdict.raw):
+                self._remove(call)
                 return call
+        return None
+
+    def cancel(self, call_id: str) -> tuple[PendingCall, bool] | None:
+        """Withdraw a call (the provider cancelled it): the call and whether its command had been
+        routed; None if it is not waiting any more."""
+        for call in self._calls:
+            if call.call_id == call_id:
+                routed = call_id not in self._unrouted
+                self._remove(call)
+                return call, routed
         return None
 
     def expired(self, now: float) -> list[PendingCall]:
         late = [call for call in self._calls if call.deadline <= now]
-        self._calls = [call for call in self._calls if call.deadline > now]
+        for call in late:
+            self._remove(call)
         return late
 
     def next_deadline(self) -> float | None:
         return min((call.deadline for call in self._calls), default=None)
+
+    def _remove(self, call: PendingCall) -> None:
+        self._calls.remove(call)
+        self._unrouted.discard(call.call_id)
 
     def __len__(self) -> int:
         return len(self._calls)

@@ -18,6 +18,7 @@ from by_your_command.agents.barge_in import PendingBargeIn, Verdict, judge
 from by_your_command.agents.clock import Clock, LoopClock
 from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
 from by_your_command.agents.context import ContextStore
+from by_your_command.agents.detections import FrameInfo, extract
 from by_your_command.agents.events import (
     AssistantAudio,
     AssistantText,
@@ -29,9 +30,11 @@ from by_your_command.agents.events import (
     ResponseStatus,
     SessionEnding,
     ToolCall,
+    ToolCallCancelled,
     Usage,
     UserTranscript,
 )
+from by_your_command.agents.frame_size import jpeg_size
 from by_your_command.agents.inputs import (
     Attention,
     AttentionChanged,
@@ -47,7 +50,7 @@ from by_your_command.agents.inputs import (
     VoiceActivity,
 )
 from by_your_command.agents.metrics import Counters, SessionMetrics, TurnMetrics
-from by_your_command.agents.port import PortClosed, RobotPort, VoiceChunk
+from by_your_command.agents.port import DetectionReport, PortClosed, RobotPort, VoiceChunk
 from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup
 from by_your_command.agents.reply_audio import ReplyAudio, pieces
 from by_your_command.agents.robot_tool import (
@@ -83,6 +86,9 @@ MAX_TEXT_CHARS = 4000  # a typed turn longer than this is cut (and counted)
 MAX_FRAME_BYTES = 4 * 1024 * 1024
 INPUT_BACKLOG = 256  # robot inputs queued before the pump stops reading (back-pressure to the bridge)
 RECENT_UTTERANCES = 32  # closed utterance ids remembered, to tell late chunks from new utterances
+# A tool call's command is routed once the provider events queued behind it are handled (a
+# cancellation may be among them), but never held behind more than this many.
+MAX_ROUTE_DEFERRALS = 64
 
 
 class AgentFatal(RuntimeError):
@@ -140,8 +146,13 @@ class AgentRuntime:
         self._barge: PendingBargeIn | None = None
         self._barge_turn: Turn | None = None
         self._tools = PendingVerdicts()
-        self._frame: tuple[bytes, float] | None = None
+        self._provider_backlog = 0  # session messages in the queue, not handled yet
+        self._route_deferrals = 0
+        self._frame: tuple[CameraFrame, float] | None = None
         self._frame_sent = True
+        self._asked_turn = 0  # the voice turn that got a frame taken while it was being asked
+        self._shown: CameraFrame | None = None  # the last frame sent to the model (detections' pixels)
+        self._shown_info: FrameInfo | None = None
         self._streams = 0
         self._last_activity = 0.0  # last exchange with the provider or the player (pause timer)
         self._awaited_at = 0.0  # last sign of life of the reply due (reply deadline)
@@ -170,10 +181,13 @@ class AgentRuntime:
                 item = await self._next_item()
                 if isinstance(item, _Stop):
                     break
+                if isinstance(item, (SessionOpened, SessionEvent, SessionFailed)):
+                    self._provider_backlog -= 1
                 try:
                     if item is not None:
                         await self._handle(item)
                     await self._run_due()
+                    await self._route_commands()
                 except AgentFatal:
                     raise
                 except Exception:
@@ -459,16 +473,38 @@ class AgentRuntime:
         if not frame.jpeg or len(frame.jpeg) > MAX_FRAME_BYTES:
             self.counters.inputs_invalid += 1
             return
-        self._frame = (frame.jpeg, self._clock.now())  # kept for the next turn; never opens a session
+        self._frame = (frame, self._clock.now())  # kept for the next turn; never opens a session
         self._frame_sent = False
+        turn = self._turn_in
+        if (
+            turn is not None
+            and not turn.held
+            and self._session is not None
+            and self._asked_turn != turn.number
+        ):
+            # The user is still asking: the first frame taken since the question started goes with
+            # it (one per turn: later ones wait for the next turn, so a long question bills one).
+            self._asked_turn = turn.number
+            self._send_frame(self._session)
 
     def _send_frame(self, session: Session) -> None:
         if self._frame is None or self._frame_sent:
             return
-        jpeg, at = self._frame
+        frame, at = self._frame
         if self._clock.now() - at <= self.config.max_frame_age_s:
-            session.send(SendImage(jpeg))
+            session.send(SendImage(frame.jpeg))
+            self._shown, self._shown_info = frame, None
         self._frame_sent = True
+
+    def _shown_frame(self) -> FrameInfo | None:
+        """The last frame the model was shown, with its size read from the JPEG (0 x 0: unreadable)."""
+        shown = self._shown
+        if shown is None:
+            return None
+        if self._shown_info is None:
+            width, height = jpeg_size(shown.jpeg) or (0, 0)
+            self._shown_info = FrameInfo(width, height, shown.stamp, shown.frame_id)
+        return self._shown_info
 
     # --- turns -------------------------------------------------------------------------------
 
@@ -504,6 +540,7 @@ class AgentRuntime:
             first,
             round(1000.0 * (now - ended), 1),
             turn.usage,
+            self._session.provider.name if self._session is not None else "",
         )
         log.info(
             "agent %s: turn %d %s (%s), first audio %s ms, reply %.0f ms, tokens in %d out %d",
@@ -675,12 +712,15 @@ class AgentRuntime:
                 await self._publish("prompt_transcript", self._port.publish_transcript(event.text.strip()))
         elif isinstance(event, AssistantTranscript):
             if event.final:
-                await self._assistant_said(event.text, event.response_id)
+                rest, _ = await self._take_detections(event.text)
+                await self._assistant_said(rest, event.response_id)
         elif isinstance(event, AssistantText):
             if event.final:
                 await self._on_text_reply(event.text, event.response_id)
         elif isinstance(event, ToolCall):
             await self._on_tool_call(session, turn, event)
+        elif isinstance(event, ToolCallCancelled):
+            await self._on_tool_calls_cancelled(event)
         elif isinstance(event, ResponseDone):
             await self._on_response_done(session, turn, event)
         elif isinstance(event, Interrupted):
@@ -733,11 +773,38 @@ class AgentRuntime:
         await self._publish("response_text", self._port.publish_text(text))
 
     async def _on_text_reply(self, text: str, response_id: str) -> None:
-        if self.config.role is AgentRole.COMMAND:
-            if text.strip():
-                await self._publish("response_cmd", self._port.publish_cmd(text.strip()))
-        else:
-            await self._assistant_said(text, response_id)
+        rest, unreadable = await self._take_detections(text)
+        if self.config.role is not AgentRole.COMMAND:
+            await self._assistant_said(rest, response_id)
+        elif unreadable:  # box JSON we could not read is still no command
+            log.warning(
+                "agent %s: a reply mentions box_2d but holds no readable detection: not routed",
+                self.config.agent_id,
+            )
+        elif rest.strip():
+            await self._publish("response_cmd", self._port.publish_cmd(rest.strip()))
+
+    async def _take_detections(self, text: str) -> tuple[str, bool]:
+        """Object detections in a reply go to `detections`, never on: the rest of the text, and
+        whether it still holds detection JSON that could not be read."""
+        found = extract(text)
+        if not found.found:
+            return text, False
+        self.counters.detections_refused += found.refused
+        if found.detections and self.config.detections and self.config.topics.detections:
+            report = DetectionReport(self.config.agent_id, found.detections, self._shown_frame())
+            self.counters.detections_published += 1
+            await self._publish("detections", self._port.publish_detections(report))
+        elif found.detections:
+            self.counters.detections_dropped += len(found.detections)
+            log.info(
+                "agent %s: %d detection(s) dropped (set detections: true to publish them)",
+                self.config.agent_id,
+                len(found.detections),
+            )
+        if found.refused:
+            log.warning("agent %s: %d detection(s) refused as unusable", self.config.agent_id, found.refused)
+        return found.text, found.unparsed
 
     async def _on_tool_call(self, session: Session, turn: Turn | None, call: ToolCall) -> None:
         self.counters.tool_calls += 1
@@ -753,7 +820,46 @@ class AgentRuntime:
             turn.tool_calls_open.add(call.call_id)
             turn.tool_responses.add(call.response_id)
         self._tools.add(call.call_id, command, self._clock.now() + self.config.tool_verdict_timeout_s)
-        await self._publish("response_cmd", self._port.publish_cmd(command))
+        # routed by _route_commands, after the provider events already queued behind this call
+
+    async def _route_commands(self) -> None:
+        """Publish the commands of tool calls once no provider event waits in the queue: a
+        cancellation that came with the call withdraws a command the robot never saw."""
+        waiting = self._tools.unrouted()
+        if not waiting:
+            self._route_deferrals = 0
+            return
+        if self._provider_backlog > 0 and self._route_deferrals < MAX_ROUTE_DEFERRALS:
+            self._route_deferrals += 1
+            return
+        self._route_deferrals = 0
+        for call in waiting:
+            self._tools.routed(call.call_id)
+            await self._publish("response_cmd", self._port.publish_cmd(call.command))
+
+    async def _on_tool_calls_cancelled(self, event: ToolCallCancelled) -> None:
+        turn = self._turn_out
+        had_open = turn is not None and bool(turn.tool_calls_open)
+        for call_id in event.call_ids:
+            withdrawn = self._tools.cancel(call_id)
+            if withdrawn is None:
+                continue  # answered already (or never ours): nothing to withdraw
+            call, routed = withdrawn
+            self.counters.tool_calls_cancelled += 1
+            if not routed:
+                self.counters.commands_withheld += 1
+            log.info(
+                "agent %s: the provider cancelled tool call %s (%r): %s",
+                self.config.agent_id,
+                call_id,
+                call.command,
+                "the robot may already act on it" if routed else "never routed",
+            )
+            if turn is not None:
+                turn.tool_calls_open.discard(call_id)
+        if turn is not None and had_open and not turn.tool_calls_open:
+            # the provider cut its own turn (the user spoke): nothing more will answer this one
+            await self._finish_turn(turn, "cancelled")
 
     def _on_verdict(self, verdict: CommandStatus) -> None:
         call = self._tools.match(verdict)
@@ -818,6 +924,8 @@ class AgentRuntime:
             )
         else:
             log.warning("agent %s: provider error %s: %s", self.config.agent_id, error.code, error.message)
+        if error.refuses_turn and self._turn_out is not None:
+            await self._fail_turn(self._turn_out, f"the provider refused it: {error.message}")
 
     def _add_usage(self, session: Session, turn: Turn | None, usage: Usage) -> None:
         session.usage = session.usage + usage
@@ -844,7 +952,7 @@ class AgentRuntime:
         timeouts = SessionTimeouts(
             self.config.connect_timeout_s, self.config.op_timeout_s, self.config.close_timeout_s
         )
-        session = Session(self._serial, provider, setup, timeouts, self._clock, self._queue.put_nowait)
+        session = Session(self._serial, provider, setup, timeouts, self._clock, self._from_session)
         session.start(delay_s=max(0.0, self._not_before - now, (self._reconnect_at or now) - now))
         self._session = session
         self._last_activity = now
@@ -853,6 +961,10 @@ class AgentRuntime:
             self._reconnect_at = None
             self._replay(session)
         return session
+
+    def _from_session(self, message: SessionMessage) -> None:
+        self._provider_backlog += 1  # tool commands wait until these are handled (_route_commands)
+        self._queue.put_nowait(message)
 
     async def _close_session(self, reason: str) -> None:
         session = self._session
@@ -870,6 +982,7 @@ class AgentRuntime:
             session.turns,
             reason,
             session.usage,
+            session.provider.name,
         )
         log.info(
             "agent %s: session %d closed (%s): billed %.1f s, %d turns, tokens in %d out %d",

@@ -1,11 +1,14 @@
-"""`byc agent --config FILE`: run one agent process (also `oai_realtime_agent`, `oai_command_agent`).
+"""`byc agent --config FILE`: run one agent process (also `oai_realtime_agent`, `oai_command_agent`,
+`gemini_live_agent`, `gemini_command_agent`).
 
     byc agent --config agent_openai.yaml                 # a file name is searched in config/
     byc agent -c my.yaml --set provider.model=gpt-realtime-2.1-mini --set echo_mode=external
     byc agent -c my.yaml --check                         # validate, print the effective config
     ros2 run by_your_command oai_realtime_agent -p 20    # the earlier project's names and options
+    ros2 run by_your_command gemini_live_agent           # config/agent_gemini.yaml
 
-The API key comes from OPENAI_API_KEY (or the variable named by provider.api_key_env), the bridge
+The API key comes from OPENAI_API_KEY (Gemini: GOOGLE_API_KEY, else GEMINI_API_KEY; or the variable
+named by provider.api_key_env), the bridge
 from bridge.url or BYC_BRIDGE_URL, its token from BYC_BRIDGE_TOKEN (bridge.token_env). Exit codes:
 0 stopped by Ctrl-C/SIGTERM, 1 fatal error (refused key or token), 2 configuration error.
 """
@@ -25,6 +28,8 @@ from by_your_command.agents.config import AgentConfigError
 
 REALTIME_CONFIG = "agent_openai.yaml"
 COMMAND_CONFIG = "agent_openai_command.yaml"
+GEMINI_CONFIG = "agent_gemini.yaml"
+GEMINI_COMMAND_CONFIG = "agent_gemini_command.yaml"
 
 
 def add_arguments(parser: argparse.ArgumentParser, default_config: str | None = None) -> None:
@@ -56,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser, default_config: str | None = 
 def run(args: argparse.Namespace, prog: str = "byc agent") -> int:
     if args.api_key is not None:
         print(f"{prog}: --api-key is not accepted (command lines are visible to every user): "
-              "set OPENAI_API_KEY", file=sys.stderr)  # fmt: skip
+              "set the key's environment variable (OPENAI_API_KEY, GEMINI_API_KEY)",
+              file=sys.stderr)  # fmt: skip
         return EXIT_CONFIG
     assignments = list(args.assignments)
     if args.pause_timeout is not None:
@@ -110,6 +116,16 @@ def main_realtime(argv: list[str] | None = None) -> int:
 def main_command(argv: list[str] | None = None) -> int:
     """`oai_command_agent`: the dual-mode command agent (config/agent_openai_command.yaml unless -c)."""
     return _main("oai_command_agent", COMMAND_CONFIG, argv)
+
+
+def main_gemini(argv: list[str] | None = None) -> int:
+    """`gemini_live_agent`: the Gemini conversation agent (config/agent_gemini.yaml unless -c)."""
+    return _main("gemini_live_agent", GEMINI_CONFIG, argv)
+
+
+def main_gemini_command(argv: list[str] | None = None) -> int:
+    """`gemini_command_agent`: the dual-mode Gemini command agent (config/agent_gemini_command.yaml)."""
+    return _main("gemini_command_agent", GEMINI_COMMAND_CONFIG, argv)
 
 
 if __name__ == "__main__":

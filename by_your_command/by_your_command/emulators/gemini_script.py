@@ -3,7 +3,9 @@
 Each user turn (activityEnd, clientContent with turnComplete, realtimeInput text) consumes the next
 scripted turn; the turns are shared by every connection of one emulator, so a conversation carries
 on across goAway, resumption and rotation. When the script runs out, `default_reply` answers. A
-tool turn's `then` answers once the client sent the toolResponse.
+tool turn's `then` answers once the client sent the toolResponse; a user turn (or activityStart)
+while calls wait for their toolResponse cancels them (toolCallCancellation, then turnComplete), as
+the real server does when interrupted.
 
 YAML form (`byc emulate gemini --script FILE`; every key optional):
 
@@ -25,6 +27,8 @@ YAML form (`byc emulate gemini --script FILE`; every key optional):
       - {text: Only text.}                     # text parts even in an audio session
       - tool: {name: robot_command, arguments: {command: wave}}
         then: {say: I waved.}
+      - tool: {name: robot_command, arguments: {command: wave}}
+        cancel_after_ms: 200                   # toolCallCancellation if no toolResponse by then
       - {silent: true}                         # never answers until interrupted
       - {say: A long story..., stall_after_ms: 300}   # stops after 300 ms of audio
       - {say: A long story..., drop_after_ms: 300}    # drops the TCP connection there
@@ -69,11 +73,16 @@ class Turn:
     stall_after_ms: int | None = None  # stop sending until interrupted
     drop_after_ms: int | None = None  # close the TCP connection without a close frame
     close_after_ms: int | None = None  # close 1011 "Deadline expired"
+    # A tool turn: toolCallCancellation this long after the toolCall when no toolResponse came
+    # (invented: the real server cancels only when the client interrupts)
+    cancel_after_ms: int | None = None
 
     def __post_init__(self) -> None:
-        for fault_ms in (self.stall_after_ms, self.drop_after_ms, self.close_after_ms):
+        for fault_ms in (self.stall_after_ms, self.drop_after_ms, self.close_after_ms, self.cancel_after_ms):
             if fault_ms is not None and fault_ms < 0:
                 raise ValueError(f"fault times must be >= 0 ms, got {fault_ms}")
+        if self.cancel_after_ms is not None and not isinstance(self.reply, CallTool):
+            raise ValueError("cancel_after_ms needs a tool turn")
 
 
 @dataclass(frozen=True)
@@ -109,7 +118,7 @@ class Script:
             raise ValueError("frame_modality must be IMAGE or VIDEO, image_tokens >= 0")
 
 
-_TURN_KEYS = TURN_KEYS | {"stall_after_ms", "drop_after_ms", "close_after_ms"}
+_TURN_KEYS = TURN_KEYS | {"stall_after_ms", "drop_after_ms", "close_after_ms", "cancel_after_ms"}
 _SCALARS: dict[str, type] = {
     "default_heard": str,
     "pace": float,
@@ -134,6 +143,7 @@ def _turn(raw: object, where: str) -> Turn:
         stall_after_ms=optional_int(turn, "stall_after_ms", where),
         drop_after_ms=optional_int(turn, "drop_after_ms", where),
         close_after_ms=optional_int(turn, "close_after_ms", where),
+        cancel_after_ms=optional_int(turn, "cancel_after_ms", where),
     )
 
 

@@ -5,10 +5,12 @@ messages and answers through callbacks.
 Faithful (protocols.md B, C.4): message and field names, one modality per session, activityStart /
 activityEnd only with automatic activity detection disabled, `interrupted` then `turnComplete`
 (no generationComplete) for a cut reply, clientContent turnComplete interrupting a reply, toolCall
-ids answered by toolResponse, handles honoured on resumption. Invented: timing, transcripts, token
-counts, usageMetadata riding on the turnComplete message, the goAway schedule.
+ids answered by toolResponse, toolCallCancellation of calls still waiting when the user interrupts,
+handles honoured on resumption. Invented: timing, transcripts, token counts, usageMetadata riding on
+the turnComplete message, the goAway schedule, a turnComplete after a cancellation, scripted
+cancellations (`cancel_after_ms`), a toolResponse for a cancelled call being ignored (counted).
 Not emulated: automatic activity detection (audio is only answered after audioStreamEnd), thinking,
-grounding, toolCallCancellation, NON_BLOCKING scheduling, context window compression.
+grounding, NON_BLOCKING scheduling, context window compression.
 """
 
 from __future__ import annotations
@@ -193,6 +195,8 @@ class GeminiLiveSession:
         self._pending = _UserInput()  # audio/frames not yet answered (outside an activity)
         self._reply: _Reply | None = None
         self._calls: dict[str, CallTool] = {}  # toolCall id → the call awaiting its toolResponse
+        self._cancelled: deque[str] = deque(maxlen=256)  # ids withdrawn by toolCallCancellation
+        self.cancelled_responses = 0  # toolResponses for cancelled calls (ignored)
         self._timers: list[asyncio.Task[None]] = []
         self.model_turns = 0
         self.audio_outside_activity_ms = 0  # audio a manual-activity client sent between activities
@@ -314,6 +318,9 @@ class GeminiLiveSession:
                 raise WireError(f"{INVALID_ARGUMENT} '{where}' must be an object.")
             call_id = str_field(response, "id", where) or ""
             call = self._calls.pop(call_id, None)
+            if call is None and call_id in self._cancelled:
+                self.cancelled_responses += 1  # too late: the call was withdrawn
+                continue
             if call is None:
                 raise WireError(f"{INVALID_ARGUMENT} '{where}.id' names no pending function call.")
             if str_field(response, "name", where) not in (None, call.name):
@@ -353,7 +360,9 @@ class GeminiLiveSession:
 
     async def _interrupt(self) -> None:
         """Stop the reply in progress: `interrupted`, then `turnComplete` (the server's own history
-        keeps what was sent; there is no truncate in Gemini)."""
+        keeps what was sent; there is no truncate in Gemini). Calls still waiting are cancelled."""
+        if self._calls:
+            await self._cancel_calls(list(self._calls))
         reply = self._reply
         if reply is None or reply.task is None or reply.task.done():
             return
@@ -376,6 +385,10 @@ class GeminiLiveSession:
                 call = {"id": call_id, "name": content.name, "args": json.loads(content.arguments)}
                 await self._send({"toolCall": {"functionCalls": [call]}})
                 self.conversation.add_text("model", f"{content.name}({content.arguments})")
+                if reply.turn.cancel_after_ms is not None:
+                    self._timers.append(
+                        asyncio.ensure_future(self._cancel_later(call_id, reply.turn.cancel_after_ms))
+                    )
                 return  # BLOCKING: the model waits for the toolResponse; no turnComplete yet
             elif content.modality == "text" or not self.config.audio_out:
                 await self._stream_text(reply, content)
@@ -386,6 +399,21 @@ class GeminiLiveSession:
         reply.finishing = True
         await self._send({"serverContent": {"generationComplete": True}})
         await self._end_turn(reply)
+
+    async def _cancel_later(self, call_id: str, after_ms: int) -> None:
+        await asyncio.sleep(after_ms / 1000)
+        if call_id in self._calls:
+            await self._cancel_calls([call_id])
+
+    async def _cancel_calls(self, call_ids: list[str]) -> None:
+        """toolCallCancellation for calls still waiting, then the turn that made them ends."""
+        for call_id in call_ids:
+            self._calls.pop(call_id, None)
+            self._cancelled.append(call_id)
+        await self._send({"toolCallCancellation": {"ids": call_ids}})
+        reply = self._reply
+        if reply is not None and not self._calls:
+            await self._end_turn(reply)
 
     async def _stream_text(self, reply: _Reply, content: Say) -> None:
         for index, word in enumerate(content.text.split(" ")):

@@ -1,11 +1,13 @@
-"""`byc agent` / `oai_realtime_agent` / `oai_command_agent` before anything starts: the config file,
-`--set`, the environment, `--check`, and the errors (one message, exit code 2, no secret printed)."""
+"""`byc agent` / `oai_realtime_agent` / `oai_command_agent` / `gemini_live_agent` /
+`gemini_command_agent` before anything starts: the config file, `--set`, the environment, `--check`,
+and the errors (one message, exit code 2, no secret printed)."""
 
 from __future__ import annotations
 
 import io
 import logging
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -24,7 +26,14 @@ pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 
 @pytest.fixture(autouse=True)
 def clean_environment(monkeypatch: pytest.MonkeyPatch) -> None:
-    for name in ("OPENAI_API_KEY", "BYC_BRIDGE_URL", "BYC_BRIDGE_TOKEN", "MY_KEY"):
+    for name in (
+        "OPENAI_API_KEY",
+        "GEMINI_API_KEY",
+        "GOOGLE_API_KEY",
+        "BYC_BRIDGE_URL",
+        "BYC_BRIDGE_TOKEN",
+        "MY_KEY",
+    ):
         monkeypatch.delenv(name, raising=False)
 
 
@@ -202,6 +211,75 @@ def test_the_shipped_configs_are_valid(
     assert effective["provider"]["api_key_env"] == "OPENAI_API_KEY (set)"
 
 
+@pytest.mark.parametrize(
+    ("name", "role", "prompt", "context", "detections"),
+    [
+        ("agent_gemini.yaml", "conversation", "conversational_assistant", "own", False),
+        ("agent_gemini_command.yaml", "command", "command_extractor", "shared", True),
+        ("agent_gemini_tool.yaml", "tools", "combined_tool_agent", "own", False),
+    ],
+)
+def test_the_shipped_gemini_configs_are_valid(
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    name: str,
+    role: str,
+    prompt: str,
+    context: str,
+    detections: bool,
+) -> None:
+    monkeypatch.setenv("GEMINI_API_KEY", FAKE_KEY)
+    code, out, err = run_byc(capsys, "--config", name, "--check")
+    assert code == 0, err
+    assert FAKE_KEY not in out + err
+    effective = yaml.safe_load(out)
+    assert (effective["role"], effective["prompt_id"], effective["context_source"]) == (role, prompt, context)
+    assert effective["detections"] is detections
+    assert effective["provider"]["type"] == "gemini"
+    assert effective["provider"]["api_key_env"] == "GEMINI_API_KEY (set)"
+
+
+@pytest.mark.parametrize(
+    ("environment", "used"),
+    [
+        ({"GEMINI_API_KEY": FAKE_KEY}, "GEMINI_API_KEY"),
+        ({"GOOGLE_API_KEY": FAKE_KEY}, "GOOGLE_API_KEY"),
+        (
+            {"GOOGLE_API_KEY": FAKE_KEY, "GEMINI_API_KEY": "AIza-other-key-0000"},
+            "GOOGLE_API_KEY",
+        ),  # the SDK's order
+        ({"GOOGLE_API_KEY": "  ", "GEMINI_API_KEY": FAKE_KEY}, "GEMINI_API_KEY"),  # blank = unset
+    ],
+)
+def test_the_gemini_key_comes_from_google_api_key_else_gemini_api_key(
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    environment: dict[str, str],
+    used: str,
+) -> None:
+    for name, value in environment.items():
+        monkeypatch.setenv(name, value)
+    code, out, err = run_byc(capsys, "--config", "agent_gemini.yaml", "--check")
+    assert code == 0, err
+    assert yaml.safe_load(out)["provider"]["api_key_env"] == f"{used} (set)"
+    assert FAKE_KEY not in out + err
+
+
+def test_a_missing_gemini_key_names_both_variables_and_api_key_env_names_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    code, out, err = run_byc(capsys, "--config", "agent_gemini.yaml")
+    assert code == 2 and out == ""
+    assert "neither GOOGLE_API_KEY nor GEMINI_API_KEY is set" in err and "from the environment" in err
+
+    monkeypatch.setenv("GEMINI_API_KEY", FAKE_KEY)  # api_key_env: only the named variable counts
+    config = write(tmp_path, {"provider": {"type": "gemini", "api_key_env": "MY_KEY"}})
+    code, _, err = run_byc(capsys, "--config", config)
+    assert code == 2 and "MY_KEY is not set" in err and "GEMINI_API_KEY" not in err
+    monkeypatch.setenv("MY_KEY", "AIza-my-key-0000")
+    assert checked(capsys, "--config", config)["provider"]["api_key_env"] == "MY_KEY (set)"
+
+
 def test_check_prints_the_effective_config_without_secrets(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -267,6 +345,39 @@ def test_the_earlier_executables_default_to_their_config_and_ignore_ros_args(
     effective = yaml.safe_load(capsys.readouterr().out)
     assert (effective["role"], effective["pause_timeout_s"]) == ("conversation", 5.0)
     assert effective["prompt_id"] == "combined_tool_agent"
+
+
+def test_the_gemini_executables_default_to_their_config_and_ignore_ros_args(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("GEMINI_API_KEY", FAKE_KEY)
+    assert agent_cli.main_gemini(["--check", "--ros-args", "-r", "__node:=talk", "--"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("# ") and "agent_gemini.yaml: valid" in out.splitlines()[0]
+    effective = yaml.safe_load(out)
+    assert (effective["role"], effective["provider"]["type"]) == ("conversation", "gemini")
+    assert agent_cli.main_gemini_command(["--check", "-p", "7", "--ros-args", "-p", "x:=1"]) == 0
+    out = capsys.readouterr().out
+    assert "agent_gemini_command.yaml: valid" in out.splitlines()[0]
+    effective = yaml.safe_load(out)
+    assert (effective["role"], effective["provider"]["type"], effective["pause_timeout_s"]) == (
+        "command",
+        "gemini",
+        7.0,
+    )
+
+
+@pytest.mark.parametrize("name", ["gemini_live_agent", "gemini_command_agent"])
+def test_the_gemini_executables_are_installed(name: str) -> None:
+    """The console scripts colcon installs (setup.py EXECUTABLES) run and refuse a missing key."""
+    executable = shutil.which(name)
+    assert executable is not None, f"{name} is not on PATH: run scripts/bootstrap.sh"
+    environment = {k: v for k, v in os.environ.items() if k not in ("GEMINI_API_KEY", "GOOGLE_API_KEY")}
+    result = subprocess.run([executable], capture_output=True, text=True, timeout=60, env=environment)
+    assert result.returncode == 2 and result.stdout == ""
+    assert (
+        result.stderr.startswith(f"{name}: ") and "neither GOOGLE_API_KEY nor GEMINI_API_KEY" in result.stderr
+    )
 
 
 # --- logging -----------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from virtual_time import VirtualClock
 from by_your_command.agents.config import AgentConfig
 from by_your_command.agents.inputs import PlaybackStatus, RobotInput, UtteranceChunk
 from by_your_command.agents.metrics import MetricsRecord, SessionMetrics, TurnMetrics
-from by_your_command.agents.port import PortUnavailable, VoiceChunk
+from by_your_command.agents.port import DetectionReport, PortUnavailable, VoiceChunk
 from by_your_command.agents.runtime import AgentRuntime
 
 _CLOSE = object()
@@ -64,6 +64,9 @@ class FakePort:
 
     async def publish_metrics(self, record: MetricsRecord) -> None:
         await self._record("metrics", record)
+
+    async def publish_detections(self, detections: DetectionReport) -> None:
+        await self._record("detections", detections)
 
     # --- views ---
     def of(self, kind: str) -> list[Any]:

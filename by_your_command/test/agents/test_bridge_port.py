@@ -11,7 +11,8 @@ from typing import Any
 import pytest
 
 from by_your_command.agents.bridge_port import BridgePort
-from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
+from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource, Topics
+from by_your_command.agents.detections import Detection, FrameInfo
 from by_your_command.agents.inputs import (
     Attention,
     AttentionChanged,
@@ -22,7 +23,7 @@ from by_your_command.agents.inputs import (
     UtteranceChunk,
 )
 from by_your_command.agents.metrics import TurnMetrics
-from by_your_command.agents.port import PortClosed, PortUnavailable, VoiceChunk
+from by_your_command.agents.port import DetectionReport, PortClosed, PortUnavailable, VoiceChunk
 from by_your_command.agents.provider import Role
 from by_your_command.bridge.client_messages import BridgeUnavailable, ClientClosed, Delivery, Lost, Received
 
@@ -157,3 +158,48 @@ def test_a_command_agent_does_not_publish_the_transcript() -> None:
 
     client = asyncio.run(scenario())
     assert client.published == [] and "prompt_transcript" not in client.advertised
+
+
+def test_a_camera_frame_keeps_its_header_and_a_bad_header_is_lost() -> None:
+    jpeg = base64.b64encode(b"\xff\xd8").decode()
+    header = {"stamp": {"sec": 1_800_000_000, "nanosec": 250_000_000}, "frame_id": "camera_optical"}
+    frame = convert({"header": header, "format": "jpeg", "data": jpeg}, "camera_forwarded")
+    assert frame == CameraFrame(b"\xff\xd8", 1_800_000_000.25, "camera_optical")
+    for bad in (
+        {"stamp": {"sec": 1, "nanosec": 1_000_000_000}},
+        {"stamp": {"sec": "1"}},
+        {"frame_id": 5},
+        "header",
+    ):
+        lost = convert({"header": bad, "format": "jpeg", "data": jpeg}, "camera_forwarded")
+        assert isinstance(lost, InputLost) and lost.reason.startswith("invalid message"), (bad, lost)
+
+
+def test_detections_are_published_only_by_an_agent_that_has_them_on() -> None:
+    cup = Detection("cup", (100.0, 200.0, 500.0, 600.0))
+    frame = FrameInfo(640, 480, 1_800_000_000.25, "camera_optical")
+
+    async def scenario(config: AgentConfig) -> FakeClient:
+        client = FakeClient()
+        port = BridgePort(client, config)
+        await port.setup()
+        await port.publish_detections(DetectionReport("command", (cup,), frame))
+        await port.publish_detections(DetectionReport("command", (cup,), None))  # no frame: JSON only
+        return client
+
+    off = asyncio.run(scenario(AgentConfig()))
+    assert "detections" not in off.advertised and off.published == []
+
+    on = asyncio.run(scenario(AgentConfig(detections=True)))
+    assert on.advertised["detections"] == "std_msgs/msg/String" and "detections_2d" not in on.advertised
+    [(topic, first), (_, second)] = on.published
+    assert topic == "detections"
+    assert json.loads(first["data"])["detections"][0]["box"] == [128.0, 48.0, 384.0, 240.0]
+    assert json.loads(second["data"])["detections"][0]["box"] is None
+
+    config = AgentConfig(detections=True, topics=Topics(detections_2d="detections_2d"))
+    both = asyncio.run(scenario(config))
+    assert both.advertised["detections_2d"] == "vision_msgs/msg/Detection2DArray"
+    assert [topic for topic, _ in both.published] == ["detections", "detections_2d", "detections"]
+    array = both.published[1][1]
+    assert array["header"]["frame_id"] == "camera_optical" and len(array["detections"]) == 1

@@ -202,6 +202,25 @@ def test_tool_call_waits_for_a_matching_tool_response() -> None:
     run(body, Script(turns=(Turn(CallTool("robot_command", '{"command": "wave"}', Say("Done."))),)))
 
 
+def test_activity_start_cancels_a_waiting_call_and_a_late_answer_is_ignored() -> None:
+    async def body(emulator: GeminiLiveEmulator) -> None:
+        async with client(emulator) as ws:
+            await ws.send(json.dumps({"realtimeInput": {"text": "wave"}}))
+            call = json.loads(await ws.recv())["toolCall"]["functionCalls"][0]
+            await ws.send(activity("activityStart"))  # the user cuts in before the result
+            got = await messages_until(ws, turn_complete)
+            assert got[0] == {"toolCallCancellation": {"ids": [call["id"]]}}
+            answer = {"id": call["id"], "name": "robot_command", "response": {"accepted": True}}
+            await ws.send(json.dumps({"toolResponse": {"functionResponses": [answer]}}))  # too late
+            await ws.send(audio_message(200))
+            await ws.send(activity("activityEnd"))
+            reply = await messages_until(ws, turn_complete)  # the connection goes on
+            assert any("modelTurn" in m.get("serverContent", {}) for m in reply)
+        assert emulator.sessions[0].cancelled_responses == 1
+
+    run(body, Script(turns=(Turn(CallTool("robot_command", '{"command": "wave"}')), Turn(Say("Yes?")))))
+
+
 @pytest.mark.parametrize(
     ("first", "code"),
     [
@@ -405,4 +424,22 @@ def test_script_yaml_loads_and_names_the_bad_place(tmp_path: Path) -> None:
         ({"turns": [{"say": "a", "then": "b"}]}, "then"),
     ]:
         with pytest.raises(ScriptError, match=where.replace("[", r"\[").replace("]", r"\]")):
+            script_from_mapping(bad)
+
+
+def test_a_tool_turn_can_script_a_cancellation() -> None:
+    script = script_from_mapping(
+        {
+            "turns": [
+                {"tool": {"name": "robot_command", "arguments": {"command": "wave"}}, "cancel_after_ms": 250}
+            ]
+        }
+    )
+    assert script.turns[0].cancel_after_ms == 250 and isinstance(script.turns[0].reply, CallTool)
+    for bad, where in [
+        ({"turns": [{"say": "a", "cancel_after_ms": 5}]}, "cancel_after_ms needs a tool turn"),
+        ({"turns": [{"tool": {"name": "robot_command"}, "cancel_after_ms": -1}]}, ">= 0 ms"),
+        ({"turns": [{"tool": {"name": "robot_command"}, "cancel_after_ms": "soon"}]}, "cancel_after_ms"),
+    ]:
+        with pytest.raises(ScriptError, match=where):
             script_from_mapping(bad)

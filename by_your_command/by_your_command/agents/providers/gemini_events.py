@@ -30,6 +30,7 @@ from by_your_command.agents.events import (
     ResponseStatus,
     SessionEnding,
     ToolCall,
+    ToolCallCancelled,
     Usage,
     UserTranscript,
 )
@@ -132,7 +133,7 @@ class EventTranslator:
         if message.tool_call is not None:
             out += self._tool_call(message.tool_call)
         if message.tool_call_cancellation is not None:
-            self.cancelled_calls.extend(message.tool_call_cancellation.ids or ())
+            out += self._cancelled(message.tool_call_cancellation.ids or [])
         if message.go_away is not None:
             out.append(SessionEnding("goAway", seconds_left(message.go_away.time_left)))
         if content is not None and content.turn_complete:
@@ -197,6 +198,12 @@ class EventTranslator:
         out += self._close(ResponseStatus.COMPLETED)
         self._after_tool_call = True
         return out
+
+    def _cancelled(self, ids: list[str]) -> list[ProviderEvent]:
+        """Calls the server withdrew (the user cut in): their results must never be sent."""
+        withdrawn = tuple(dict.fromkeys(call_id for call_id in ids[:_REMEMBERED] if call_id))
+        self.cancelled_calls.extend(withdrawn)
+        return [ToolCallCancelled(withdrawn)] if withdrawn else []
 
     def _turn_complete(self) -> list[ProviderEvent]:
         out = self._flush_heard()

@@ -259,6 +259,7 @@ class OpenAIRealtimeProvider:
                 ProviderError(
                     "input_audio_buffer_commit_empty",
                     f"utterance of {buffered_ms} ms not sent: the API needs at least {MIN_COMMIT_MS} ms",
+                    refuses_turn=True,
                 )
             )
             return
