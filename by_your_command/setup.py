@@ -70,6 +70,7 @@ setup(
         PACKAGE: ["py.typed"],
         f"{PACKAGE}.config": ["*.yaml"],
         f"{PACKAGE}.demo": ["*.wav", "*.sh"],  # the bundled demo speech and the script that makes it
+        f"{PACKAGE}.monitor": ["static/*"],  # the live monitor page the bridge serves
     },
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

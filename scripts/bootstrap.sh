@@ -5,7 +5,7 @@ set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
-APT_PACKAGES=(espeak-ng sox libsox-fmt-all libportaudio2 iproute2)
+APT_PACKAGES=(espeak-ng sox libsox-fmt-all libportaudio2 iproute2 chromium chromium-driver)
 
 say() { printf 'bootstrap: %s\n' "$*"; }
 die() { printf 'bootstrap: ERROR: %s\n' "$*" >&2; exit 1; }

@@ -8,7 +8,6 @@ import logging
 from http import HTTPStatus
 
 from websockets.asyncio.server import Server, ServerConnection, serve
-from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
@@ -16,6 +15,12 @@ from by_your_command.bridge.auth import check_bind, is_loopback, presented_token
 from by_your_command.bridge.core import BridgeCore, ClientSession
 from by_your_command.bridge.flow import LogLimiter
 from by_your_command.bridge.protocol import preview
+from by_your_command.bridge.static_files import (
+    StaticSite,
+    error_response,
+    file_response,
+    is_websocket_upgrade,
+)
 
 log = logging.getLogger(__name__)
 # websockets logs request headers (Authorization: the token) at DEBUG: give it a logger that never does.
@@ -43,9 +48,10 @@ def own_origins(host: str, port: int) -> set[str]:
 
 
 class BridgeServer:
-    def __init__(self, core: BridgeCore, token: str) -> None:
+    def __init__(self, core: BridgeCore, token: str, site: StaticSite | None = None) -> None:
         self.core = core
         self._token = token
+        self._site = site  # plain HTTP GETs (the monitor page); None: only WebSocket handshakes
         self._server: Server | None = None
         self._allowed_origins: set[str] = set()
         # Connections admitted and not yet gone, counted from the handshake on: admission is one
@@ -99,18 +105,14 @@ class BridgeServer:
 
     def _admit(self, connection: ServerConnection, request: Request) -> Response | None:
         """Runs before the handshake completes: foreign browser origin, wrong token or too many
-        clients → HTTP refusal. Synchronous: nothing else runs between the check and the count."""
+        clients → HTTP refusal. Synchronous: nothing else runs between the check and the count.
+        A request that is not a WebSocket upgrade is a page request: answered here, never admitted."""
         peer = _peer(connection)
-        origin = request.headers.get("Origin")
-        # A browser always sends Origin; agents and roslibpy send none. A page from anywhere else
-        # may not drive the robot, even on loopback and even with a valid (stolen) token.
-        if origin is not None and normalize_origin(origin) not in self._allowed_origins:
-            self._refused(peer, f"browser origin {preview(origin)} is not allowed")
-            return _refusal(HTTPStatus.FORBIDDEN, "this origin may not connect to the bridge\n")
-        presented = presented_token(request.headers.get("Authorization"), request.path)
-        if not token_matches(self._token, presented):
-            self._refused(peer, f"{'missing' if presented is None else 'wrong'} token")  # never the token
-            return _refusal(HTTPStatus.UNAUTHORIZED, "a valid bridge token is required\n")
+        if not is_websocket_upgrade(request.headers):
+            return self._serve_page(peer, request)
+        refusal = self._check_origin_and_token(peer, request)
+        if refusal is not None:
+            return refusal
         if len(self._admitted) >= self.core.params.max_clients:
             self._refused(peer, f"already {self.core.params.max_clients} clients")
             return _refusal(HTTPStatus.SERVICE_UNAVAILABLE, "too many bridge clients\n")
@@ -119,6 +121,35 @@ class BridgeServer:
         self._watchers.add(watcher)
         watcher.add_done_callback(self._watchers.discard)
         return None
+
+    def _check_origin_and_token(
+        self, peer: str, request: Request, token_needed: bool = True
+    ) -> Response | None:
+        origin = request.headers.get("Origin")
+        # A browser always sends Origin; agents and roslibpy send none. A page from anywhere else
+        # may not drive the robot, even on loopback and even with a valid (stolen) token.
+        if origin is not None and normalize_origin(origin) not in self._allowed_origins:
+            self._refused(peer, f"browser origin {preview(origin)} is not allowed")
+            return _refusal(HTTPStatus.FORBIDDEN, "this origin may not connect to the bridge\n")
+        if not token_needed:
+            return None
+        presented = presented_token(request.headers.get("Authorization"), request.path)
+        if not token_matches(self._token, presented):
+            self._refused(peer, f"{'missing' if presented is None else 'wrong'} token")  # never the token
+            return _refusal(HTTPStatus.UNAUTHORIZED, "a valid bridge token is required\n")
+        return None
+
+    def _serve_page(self, peer: str, request: Request) -> Response:
+        """The monitor page's files: same origin and token rules as a WebSocket client."""
+        if request.method != "GET":
+            return error_response(HTTPStatus.METHOD_NOT_ALLOWED, "only GET is served here\n")
+        file = self._site.find(request.path) if self._site is not None else None
+        refusal = self._check_origin_and_token(peer, request, token_needed=file is None or not file.public)
+        if refusal is not None:
+            return refusal
+        if file is None:
+            return error_response(HTTPStatus.NOT_FOUND, "nothing here: a WebSocket bridge (rosbridge v2)\n")
+        return file_response(file)
 
     def _refused(self, peer: str, reason: str) -> None:
         self.refused_connections += 1
@@ -173,5 +204,4 @@ def _peer(connection: ServerConnection) -> str:
 
 
 def _refusal(status: HTTPStatus, body: str) -> Response:
-    headers = Headers([("Content-Type", "text/plain"), ("Content-Length", str(len(body)))])
-    return Response(status.value, status.phrase, headers, body.encode())
+    return error_response(status, body)

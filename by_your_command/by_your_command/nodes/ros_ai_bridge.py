@@ -7,6 +7,8 @@ discovery; messages of topics nobody subscribes to are not even converted.
 Losses before the bridge are counted from gaps in each message's publication sequence number
 (while the topic has one publisher) and reported to the topic's subscribers; a state topic whose
 last publisher leaves has its cached value forgotten.
+The node also serves the live monitor page on the same port (monitor/, docs/monitor.md) and
+summarises the agents' `agent_metrics` records into /diagnostics and the latched `agent_summary`.
 """
 
 from __future__ import annotations
@@ -26,11 +28,16 @@ from rclpy.event_handler import QoSSubscriptionMatchedInfo, SubscriptionEventCal
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSHistoryPolicy, QoSProfile
+from std_msgs.msg import String
 
 from by_your_command.bridge.config import BridgeParams, TopicRule, load_allow_lists
 from by_your_command.bridge.core import BridgeCore, PublishError
 from by_your_command.bridge.names import resolve_topic
 from by_your_command.bridge.server import BridgeServer
+from by_your_command.bridge.static_files import StaticSite
+from by_your_command.monitor.config import MonitorConfig, MonitorParams, load_monitor_config
+from by_your_command.monitor.site import monitor_site
+from by_your_command.monitor.summary import WARN, AgentSummary, StatusReport
 from by_your_command.nodes import _qos
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._runtime import run_node
@@ -217,8 +224,10 @@ class RosAiBridge(Node):
     def __init__(self) -> None:
         super().__init__("ros_ai_bridge")
         self.params = declare_config(self, BridgeParams)
+        self.monitor_params = declare_config(self, MonitorParams)
         token = self.params.token or os.environ.get(self.params.token_env, "")
         allow = load_allow_lists(self._config_path())
+        monitor = load_monitor_config(self._monitor_config_path())
         namespace = self.get_namespace()
 
         self._log_handler = _RclpyLogHandler(self)
@@ -234,13 +243,16 @@ class RosAiBridge(Node):
         )
         self.core = BridgeCore(self.params, allow, self._graph, namespace)
         self._graph.core = self.core
-        self.server = BridgeServer(self.core, token)
+        site: StaticSite | None = monitor_site(monitor) if self.monitor_params.monitor_page else None
+        self.server = BridgeServer(self.core, token, site)
+        self._setup_summary(monitor, namespace)
         self._diagnostics = (
             self.create_publisher(DiagnosticArray, self.params.diagnostics_topic, _qos.RELIABLE)
             if self.params.diagnostics_period_s > 0
             else None
         )
         self._diagnostics_task: asyncio.Task[None] | None = None
+        self._summary_task: asyncio.Task[None] | None = None
         self._reported_losses = 0  # WARN while drops/losses grow, OK again once they stop
         self._thread = threading.Thread(target=self._loop.run_forever, name="bridge-asyncio", daemon=True)
         self._thread.start()
@@ -251,22 +263,69 @@ class RosAiBridge(Node):
         )
 
     def _config_path(self) -> Path:
-        if self.params.config_path:
-            return Path(self.params.config_path)
+        return _installed_or(self.params.config_path, "bridge.yaml", "config_path")
+
+    def _monitor_config_path(self) -> Path:
+        return _installed_or(self.monitor_params.monitor_config_path, "monitor.yaml", "monitor_config_path")
+
+    def _setup_summary(self, monitor: MonitorConfig, namespace: str) -> None:
+        """agent_metrics → AgentSummary (on the loop thread, like the core) → diagnostics + summary topic."""
+        params = self.monitor_params
+        self.summary = AgentSummary(monitor.prices, monitor.currency, monitor.page.latency_turns)
+        self._metrics_topic = resolve_topic(params.metrics_topic, namespace)
+        self._summary_errors = 0
+        self._summary_pub = (
+            self.create_publisher(String, resolve_topic(params.summary_topic, namespace), _qos.LATCHED)
+            if params.summary_topic
+            else None
+        )
+        self.create_subscription(String, self._metrics_topic, self._on_metrics, _qos.RELIABLE)
+
+    def _on_metrics(self, msg: String) -> None:
         try:
-            return Path(get_package_share_directory("by_your_command")) / "config" / "bridge.yaml"
-        except PackageNotFoundError:
-            raise RuntimeError("config_path is empty and by_your_command is not installed") from None
+            self._loop.call_soon_threadsafe(self._feed_summary, msg.data)
+        except RuntimeError:
+            pass  # the loop is closed: the node is shutting down
+
+    def _feed_summary(self, text: str) -> None:
+        try:
+            self.summary.feed(text)
+        except Exception as error:  # a bug must not end the loop's callbacks; counted in diagnostics
+            self._summary_errors += 1
+            self.get_logger().error(f"summarising an agent_metrics record failed: {error!r}")
+
+    def agents_connected(self) -> int:
+        """Bridge clients that advertised the metrics topic: every agent does when it connects."""
+        return sum(1 for session in self.core.sessions if self._metrics_topic in session.advertised)
 
     async def _start(self) -> None:
         await self.server.start()
         if self._diagnostics is not None:
             self._diagnostics_task = asyncio.create_task(self._publish_diagnostics())
+        if self._summary_pub is not None:
+            self._summary_task = asyncio.create_task(self._publish_summary())
 
     async def _stop(self) -> None:
-        if self._diagnostics_task is not None:
-            self._diagnostics_task.cancel()
+        for task in (self._diagnostics_task, self._summary_task):
+            if task is not None:
+                task.cancel()
         await self.server.stop()
+
+    async def _publish_summary(self) -> None:
+        """The latched summary, whenever it changed (checked every summary_period_s)."""
+        assert self._summary_pub is not None
+        published: tuple[int, int] | None = None
+        while True:
+            try:
+                connected = self.agents_connected()
+                if published != (self.summary.version, connected):
+                    text = json.dumps(self.summary.snapshot(connected), separators=(",", ":"))
+                    self._summary_pub.publish(String(data=text))
+                    published = (self.summary.version, connected)
+            except Exception as error:  # keep summarising: one failure must not end it
+                self._summary_errors += 1
+                self.get_logger().error(f"cannot publish the agent summary: {error!r}")
+            await asyncio.sleep(self.monitor_params.summary_period_s)
 
     async def _publish_diagnostics(self) -> None:
         assert self._diagnostics is not None
@@ -329,9 +388,18 @@ class RosAiBridge(Node):
             hardware_id="",
             values=[KeyValue(key=key, value=str(value)) for key, value in values.items()],
         )
-        array = DiagnosticArray(status=[status])
+        agents = [
+            _diagnostic_status(report, self.get_fully_qualified_name()) for report in self._agent_reports()
+        ]
+        array = DiagnosticArray(status=[status, *agents])
         array.header.stamp = self.get_clock().now().to_msg()
         return array
+
+    def _agent_reports(self) -> list[StatusReport]:
+        reports = self.summary.reports(self.agents_connected())
+        if self._summary_errors:
+            reports[0].values["summary_errors"] = str(self._summary_errors)
+        return reports
 
     def destroy_node(self) -> None:
         # The node is going away (its logger will not publish any more): stop routing to it.
@@ -344,6 +412,25 @@ class RosAiBridge(Node):
             self._loop.call_soon_threadsafe(self._loop.stop)
             self._thread.join(timeout=5.0)
         super().destroy_node()
+
+
+def _installed_or(path: str, file_name: str, parameter: str) -> Path:
+    if path:
+        return Path(path)
+    try:
+        return Path(get_package_share_directory("by_your_command")) / "config" / file_name
+    except PackageNotFoundError:
+        raise RuntimeError(f"{parameter} is empty and by_your_command is not installed") from None
+
+
+def _diagnostic_status(report: StatusReport, node_name: str) -> DiagnosticStatus:
+    return DiagnosticStatus(
+        level=DiagnosticStatus.WARN if report.level == WARN else DiagnosticStatus.OK,
+        name=f"{node_name}: {report.name}",
+        message=report.message,
+        hardware_id="",
+        values=[KeyValue(key=key, value=value) for key, value in report.values.items()],
+    )
 
 
 # Large conversions run on worker threads that hold the GIL; Python hands it to the waiting event

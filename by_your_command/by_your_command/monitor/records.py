@@ -1,0 +1,176 @@
+"""`agent_metrics` records (agents/metrics.py) read back from untrusted JSON text.
+
+Anything on the topic may come from any bridge client, so every field is checked: a record that is
+not what an agent publishes raises `BadRecord` (counted by the summary, never a crash).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+MAX_RECORD_CHARS = 65_536  # an agent's record is a few hundred characters
+MAX_NAME_CHARS = 64
+MAX_REASON_CHARS = 200
+MAX_COUNT = 10**12  # tokens, turns, serials: far above anything real, far below float trouble
+
+
+class BadRecord(ValueError):
+    """Not an agent_metrics record; the message says why (without echoing the whole text)."""
+
+
+@dataclass(frozen=True)
+class Tokens:
+    input_text: int = 0
+    input_audio: int = 0
+    input_image: int = 0
+    cached_input: int = 0
+    output_text: int = 0
+    output_audio: int = 0
+
+    @property
+    def input(self) -> int:
+        return self.input_text + self.input_audio + self.input_image
+
+    @property
+    def output(self) -> int:
+        return self.output_text + self.output_audio
+
+    def __add__(self, other: Tokens) -> Tokens:
+        return Tokens(
+            self.input_text + other.input_text,
+            self.input_audio + other.input_audio,
+            self.input_image + other.input_image,
+            self.cached_input + other.cached_input,
+            self.output_text + other.output_text,
+            self.output_audio + other.output_audio,
+        )
+
+
+@dataclass(frozen=True)
+class TurnRecord:
+    agent_id: str
+    provider: str
+    session: int
+    turn: int
+    outcome: str
+    first_audio_ms: float | None
+    reply_ms: float
+    tokens: Tokens
+
+
+@dataclass(frozen=True)
+class SessionRecord:
+    agent_id: str
+    provider: str
+    session: int
+    billed_s: float
+    turns: int
+    close_reason: str
+    tokens: Tokens
+
+
+Record = TurnRecord | SessionRecord
+
+# JSON names of the usage fields (agents/events.Usage) → Tokens fields.
+_USAGE_FIELDS = {
+    "input_text_tokens": "input_text",
+    "input_audio_tokens": "input_audio",
+    "input_image_tokens": "input_image",
+    "cached_input_tokens": "cached_input",
+    "output_text_tokens": "output_text",
+    "output_audio_tokens": "output_audio",
+}
+
+
+def parse_record(text: str) -> Record:
+    if len(text) > MAX_RECORD_CHARS:
+        raise BadRecord(f"record of {len(text)} characters (at most {MAX_RECORD_CHARS})")
+    try:
+        data = json.loads(text, parse_constant=_no_constant)
+    except (ValueError, RecursionError) as error:
+        raise BadRecord(f"not JSON: {str(error)[:80]}") from None
+    if not isinstance(data, dict):
+        raise BadRecord("not a JSON object")
+    kind = data.get("record")
+    agent_id = _name(data, "agent_id", required=True)
+    provider = _name(data, "provider", required=False)
+    session = _count(data, "session")
+    tokens = _tokens(data.get("usage", {}))
+    if kind == "turn":
+        return TurnRecord(
+            agent_id,
+            provider,
+            session,
+            _count(data, "turn"),
+            _text(data, "outcome", MAX_NAME_CHARS),
+            _millis(data, "first_audio_ms", optional=True),
+            _millis(data, "reply_ms", optional=False) or 0.0,
+            tokens,
+        )
+    if kind == "session":
+        return SessionRecord(
+            agent_id,
+            provider,
+            session,
+            _number(data, "billed_s"),
+            _count(data, "turns"),
+            _text(data, "close_reason", MAX_REASON_CHARS),
+            tokens,
+        )
+    raise BadRecord(f"record must be 'turn' or 'session', got {str(kind)[:20]!r}")
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number")
+
+
+def _name(data: dict[str, Any], key: str, required: bool) -> str:
+    value = data.get(key, "")
+    if not isinstance(value, str) or (required and not value.strip()):
+        raise BadRecord(f"{key}: expected a non-empty string" if required else f"{key}: expected a string")
+    return " ".join(value.split())[:MAX_NAME_CHARS]
+
+
+def _text(data: dict[str, Any], key: str, limit: int) -> str:
+    value = data.get(key)
+    if not isinstance(value, str):
+        raise BadRecord(f"{key}: expected a string")
+    return " ".join(value.split())[:limit]
+
+
+def _count(data: dict[str, Any], key: str) -> int:
+    value = data.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_COUNT:
+        raise BadRecord(f"{key}: expected an integer 0..{MAX_COUNT}")
+    return value
+
+
+def _number(data: dict[str, Any], key: str) -> float:
+    value = data.get(key)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise BadRecord(f"{key}: expected a number")
+    number = float(value)
+    if not math.isfinite(number) or not 0 <= number <= MAX_COUNT:
+        raise BadRecord(f"{key}: expected a number 0..{MAX_COUNT}")
+    return number
+
+
+def _millis(data: dict[str, Any], key: str, optional: bool) -> float | None:
+    if optional and data.get(key) is None:
+        return None
+    return _number(data, key)
+
+
+def _tokens(usage: Any) -> Tokens:
+    if not isinstance(usage, dict):
+        raise BadRecord("usage: expected an object")
+    values = {}
+    for key, name in _USAGE_FIELDS.items():
+        try:
+            values[name] = _count(usage, key) if key in usage else 0
+        except BadRecord as error:
+            raise BadRecord(f"usage.{error}") from None
+    return Tokens(**values)

@@ -1,0 +1,416 @@
+// by_your_command live monitor: a small rosbridge v2 client of our own (no third-party code).
+// Everything received is untrusted: fields are type-checked, and text only ever reaches the page
+// through textContent (never parsed as HTML). No audio topic is subscribed.
+"use strict";
+
+(() => {
+  const TOKEN = new URLSearchParams(window.location.search).get("token") || "";
+  const DEFAULTS = { currency: "USD", page: { camera_interval_ms: 500, transcript_lines: 300, latency_turns: 50 } };
+  const BACKOFF_INITIAL_MS = 500;
+  const BACKOFF_MAX_MS = 10000;
+  const STABLE_AFTER_MS = 5000; // a connection that lasted this long resets the backoff
+  const MAX_TEXT = 500;
+  const MAX_FRAME_CHARS = 8 * 1024 * 1024; // base64 of a 6 MB image: far above a forwarded frame
+
+  // topic -> [type, options]; every topic the page shows (none of them audio).
+  const SUBSCRIPTIONS = {
+    prompt_transcript: ["std_msgs/msg/String"],
+    response_text: ["std_msgs/msg/String"],
+    command_status: ["by_your_command_msgs/msg/CommandVerdict"],
+    attention_state: ["std_msgs/msg/String"],
+    voice_activity: ["std_msgs/msg/Bool"],
+    assistant_speaking: ["std_msgs/msg/Bool"],
+    interruption_signal: ["by_your_command_msgs/msg/Interruption"],
+    agent_metrics: ["std_msgs/msg/String"],
+    agent_summary: ["std_msgs/msg/String"],
+    detections: ["std_msgs/msg/String"],
+    camera_forwarded: ["sensor_msgs/msg/CompressedImage", { queue_length: 1 }],
+  };
+  const PUBLISHES = {
+    prompt_text: "std_msgs/msg/String",
+    wake_cmd: "std_msgs/msg/Bool",
+    voice_active: "std_msgs/msg/Bool",
+  };
+
+  const $ = (id) => document.getElementById(id);
+  const state = {
+    settings: DEFAULTS,
+    socket: null,
+    backoffMs: BACKOFF_INITIAL_MS,
+    openedAt: 0,
+    interruptions: 0,
+    frames: 0,
+    detections: null,
+    decoding: false,
+    pendingFrame: null,
+    lastAttention: "",
+  };
+
+  // --- small helpers ------------------------------------------------------------------------
+
+  function text(value, limit = MAX_TEXT) {
+    const s = typeof value === "string" ? value : String(value ?? "");
+    const flat = s.replace(/\s+/g, " ").trim();
+    return flat.length > limit ? flat.slice(0, limit - 1) + "…" : flat;
+  }
+
+  function isNumber(value) {
+    return typeof value === "number" && Number.isFinite(value);
+  }
+
+  function ms(value) {
+    return isNumber(value) ? `${Math.round(value)} ms` : "–";
+  }
+
+  function setState(id, value, label) {
+    const element = $(id);
+    element.dataset.state = value;
+    element.textContent = label;
+  }
+
+  function cell(row, value, className) {
+    const td = document.createElement("td");
+    td.textContent = value;
+    if (className) td.className = className;
+    row.appendChild(td);
+  }
+
+  function money(value, currency) {
+    return isNumber(value) ? `${value.toFixed(4)} ${currency}` : "no price";
+  }
+
+  // --- transcript ---------------------------------------------------------------------------
+
+  function addLine(kind, message, extra = {}) {
+    const list = $("transcript");
+    const item = document.createElement("li");
+    item.dataset.kind = kind;
+    for (const [key, value] of Object.entries(extra)) item.dataset[key] = value;
+    const time = document.createElement("span");
+    time.className = "time";
+    time.textContent = new Date().toLocaleTimeString();
+    const what = document.createElement("span");
+    what.className = "kind";
+    what.textContent = kind;
+    const body = document.createElement("span");
+    body.className = "text";
+    body.textContent = message;
+    item.append(time, what, body);
+    const atBottom = list.scrollHeight - list.scrollTop - list.clientHeight < 40;
+    list.appendChild(item);
+    while (list.children.length > state.settings.page.transcript_lines) list.removeChild(list.firstChild);
+    if (atBottom) list.scrollTop = list.scrollHeight;
+  }
+
+  // --- handlers per topic -------------------------------------------------------------------
+
+  function parseJsonField(msg) {
+    if (typeof msg.data !== "string" || msg.data.length > 1024 * 1024) return null;
+    try {
+      const value = JSON.parse(msg.data);
+      return value !== null && typeof value === "object" && !Array.isArray(value) ? value : null;
+    } catch (error) {
+      return null;
+    }
+  }
+
+  const handlers = {
+    prompt_transcript(msg) {
+      if (typeof msg.data === "string" && msg.data.trim()) addLine("user", `"${text(msg.data)}"`);
+    },
+    response_text(msg) {
+      if (typeof msg.data === "string" && msg.data.trim()) addLine("robot", `"${text(msg.data)}"`);
+    },
+    command_status(msg) {
+      if (msg.accepted === true) {
+        const where = text(msg.topic, 120) || "?";
+        addLine("command", `${text(msg.command, 120)} -> ${where}: accepted`, { verdict: "accepted" });
+      } else {
+        addLine("command", `"${text(msg.raw, 120)}" refused: ${text(msg.reason, 200)}`, { verdict: "refused" });
+      }
+    },
+    attention_state(msg) {
+      const value = text(msg.data, 20);
+      if (!["awake", "asleep", "muted"].includes(value)) return;
+      setState("attention", value, value);
+      if (value !== state.lastAttention) addLine("attention", value);
+      state.lastAttention = value;
+    },
+    voice_activity(msg) {
+      const on = msg.data === true;
+      setState("vad", String(on), on ? "speech" : "silent");
+    },
+    assistant_speaking(msg) {
+      const on = msg.data === true;
+      setState("speaking", String(on), on ? "speaking" : "no");
+    },
+    interruption_signal(msg) {
+      state.interruptions += 1;
+      $("interruptions").textContent = String(state.interruptions);
+      const stream = text(msg.stream_id, 80) || "every reply so far";
+      addLine("interrupt", `${stream} (${text(msg.reason, 40) || "no reason"})`);
+    },
+    agent_metrics(msg) {
+      const record = parseJsonField(msg);
+      if (record === null) return;
+      const agent = text(record.agent_id, 40);
+      if (record.record === "turn") {
+        const outcome = text(record.outcome, 40);
+        addLine("latency", `${agent}: first audio ${ms(record.first_audio_ms)}, reply done ${ms(record.reply_ms)} (${outcome})`);
+      } else if (record.record === "session") {
+        const billed = isNumber(record.billed_s) ? `${record.billed_s.toFixed(1)} s` : "?";
+        addLine("session", `${agent}: session closed after ${billed} billed (${text(record.close_reason, 120)})`);
+      }
+    },
+    agent_summary(msg) {
+      const summary = parseJsonField(msg);
+      if (summary !== null) showSummary(summary);
+    },
+    detections(msg) {
+      const data = parseJsonField(msg);
+      if (data === null || !Array.isArray(data.detections)) return;
+      state.detections = data;
+      showDetections(data);
+      drawOverlay();
+    },
+    camera_forwarded(msg) {
+      if (typeof msg.data !== "string" || msg.data.length > MAX_FRAME_CHARS) return;
+      const format = typeof msg.format === "string" && msg.format.toLowerCase().includes("png") ? "png" : "jpeg";
+      state.pendingFrame = { data: msg.data, type: `image/${format}`, stamp: msg.header && msg.header.stamp };
+      if (!state.decoding) decodeNextFrame();
+    },
+  };
+
+  // --- agents panel -------------------------------------------------------------------------
+
+  function showSummary(summary) {
+    const currency = text(summary.currency, 8) || state.settings.currency;
+    const connected = Number.isInteger(summary.agents_connected) ? summary.agents_connected : "?";
+    const invalid = Number.isInteger(summary.invalid_records) && summary.invalid_records > 0
+      ? `; ${summary.invalid_records} invalid record(s) ignored` : "";
+    $("agents-connected").textContent = `${connected} agent(s) connected to the bridge${invalid}`;
+    const agents = $("agents").tBodies[0];
+    agents.replaceChildren();
+    for (const agent of Array.isArray(summary.agents) ? summary.agents.slice(0, 64) : []) {
+      if (agent === null || typeof agent !== "object") continue;
+      const row = agents.insertRow();
+      const stateName = text(agent.state, 20);
+      let stateLabel = stateName;
+      if (stateName === "in session" && Number.isInteger(agent.open_session)) stateLabel = `in session ${agent.open_session}`;
+      else if (agent.last_close_reason) stateLabel = `${stateName} (${text(agent.last_close_reason, 80)})`;
+      cell(row, text(agent.agent_id, 40));
+      cell(row, text(agent.provider, 40) || "?");
+      cell(row, stateLabel, `state-${stateName.replace(/[^a-z]+/g, "-")}`);
+      cell(row, String(Number.isInteger(agent.turns) ? agent.turns : "?"));
+      cell(row, String(Number.isInteger(agent.sessions) ? agent.sessions : "?"));
+      cell(row, isNumber(agent.billed_s) ? agent.billed_s.toFixed(1) : "?");
+      cell(row, `${agent.input_tokens ?? "?"} / ${agent.output_tokens ?? "?"}`);
+      cell(row, money(agent.cost, currency));
+      cell(row, `${ms(agent.last_first_audio_ms)} (${ms(agent.median_first_audio_ms)})`);
+    }
+    const providers = $("providers").tBodies[0];
+    providers.replaceChildren();
+    for (const provider of Array.isArray(summary.providers) ? summary.providers.slice(0, 16) : []) {
+      if (provider === null || typeof provider !== "object") continue;
+      const row = providers.insertRow();
+      cell(row, text(provider.provider, 40) || "?");
+      cell(row, String(Number.isInteger(provider.sessions) ? provider.sessions : "?"));
+      cell(row, isNumber(provider.billed_s) ? provider.billed_s.toFixed(1) : "?");
+      cell(row, `${provider.input_tokens ?? "?"} / ${provider.output_tokens ?? "?"}`);
+      cell(row, money(provider.cost, currency));
+    }
+    $("total-cost").textContent = `estimated total: ${money(summary.total_cost, currency)}`;
+  }
+
+  // --- camera -------------------------------------------------------------------------------
+
+  function base64ToBytes(data) {
+    const binary = atob(data);
+    const bytes = new Uint8Array(binary.length);
+    for (let i = 0; i < binary.length; i += 1) bytes[i] = binary.charCodeAt(i);
+    return bytes;
+  }
+
+  let lastBitmap = null;
+
+  async function decodeNextFrame() {
+    state.decoding = true;
+    while (state.pendingFrame !== null) {
+      const frame = state.pendingFrame;
+      state.pendingFrame = null; // only the newest waiting frame matters
+      try {
+        const bitmap = await createImageBitmap(new Blob([base64ToBytes(frame.data)], { type: frame.type }));
+        if (lastBitmap !== null) lastBitmap.close();
+        lastBitmap = bitmap;
+        state.frames += 1;
+        const canvas = $("camera");
+        canvas.width = bitmap.width;
+        canvas.height = bitmap.height;
+        drawOverlay();
+        const caption = $("camera-caption");
+        caption.dataset.frames = String(state.frames);
+        const stamp = frame.stamp && isNumber(frame.stamp.sec) ? new Date(frame.stamp.sec * 1000).toLocaleTimeString() : "?";
+        caption.textContent = `${bitmap.width}×${bitmap.height}, taken ${stamp}; ${state.frames} frame(s) shown`;
+      } catch (error) {
+        $("camera-caption").textContent = "a camera frame could not be decoded";
+      }
+    }
+    state.decoding = false;
+  }
+
+  function drawOverlay() {
+    const canvas = $("camera");
+    const context = canvas.getContext("2d");
+    if (lastBitmap === null) return;
+    context.drawImage(lastBitmap, 0, 0);
+    const data = state.detections;
+    if (data === null) return;
+    // Boxes are in the pixels of the image they were found in: scale to the frame shown.
+    const sx = isNumber(data.width) && data.width > 0 ? canvas.width / data.width : 1;
+    const sy = isNumber(data.height) && data.height > 0 ? canvas.height / data.height : 1;
+    context.lineWidth = Math.max(2, canvas.width / 320);
+    context.font = `${Math.max(12, Math.round(canvas.width / 40))}px sans-serif`;
+    for (const item of data.detections.slice(0, 100)) {
+      if (item === null || typeof item !== "object" || !Array.isArray(item.box) || item.box.length !== 4) continue;
+      if (!item.box.every(isNumber)) continue;
+      const [x0, y0, x1, y1] = item.box;
+      context.strokeStyle = "#ffcc00";
+      context.fillStyle = "#ffcc00";
+      context.strokeRect(x0 * sx, y0 * sy, (x1 - x0) * sx, (y1 - y0) * sy);
+      context.fillText(text(item.label, 40), x0 * sx + 3, Math.max(12, y0 * sy - 4));
+    }
+  }
+
+  function showDetections(data) {
+    const list = $("detections");
+    list.replaceChildren();
+    for (const item of data.detections.slice(0, 100)) {
+      if (item === null || typeof item !== "object") continue;
+      const li = document.createElement("li");
+      const score = isNumber(item.score) ? ` ${(item.score * 100).toFixed(0)} %` : "";
+      const box = Array.isArray(item.box) && item.box.every(isNumber) ? ` [${item.box.map(Math.round).join(", ")}]` : "";
+      li.textContent = `${text(item.label, 60)}${score}${box}`;
+      list.appendChild(li);
+    }
+  }
+
+  // --- the connection -----------------------------------------------------------------------
+
+  function send(message) {
+    if (state.socket === null || state.socket.readyState !== WebSocket.OPEN) return false;
+    state.socket.send(JSON.stringify(message));
+    return true;
+  }
+
+  function onOpen() {
+    state.openedAt = Date.now();
+    setState("connection", "connected", "connected");
+    for (const [topic, [type, options]] of Object.entries(SUBSCRIPTIONS)) {
+      const request = { op: "subscribe", id: `sub:${topic}`, topic, type, ...(options || {}) };
+      if (topic === "camera_forwarded") request.throttle_rate = state.settings.page.camera_interval_ms;
+      send(request);
+    }
+    for (const [topic, type] of Object.entries(PUBLISHES)) send({ op: "advertise", id: `adv:${topic}`, topic, type });
+  }
+
+  function onMessage(event) {
+    if (typeof event.data !== "string") return;
+    let message;
+    try {
+      message = JSON.parse(event.data);
+    } catch (error) {
+      return;
+    }
+    if (message === null || typeof message !== "object") return;
+    if (message.op === "publish" && typeof message.topic === "string" && message.msg && typeof message.msg === "object") {
+      const handler = Object.prototype.hasOwnProperty.call(handlers, message.topic) ? handlers[message.topic] : null;
+      if (handler !== null) handler(message.msg);
+    } else if (message.op === "status") {
+      onStatus(message);
+    }
+  }
+
+  function onStatus(status) {
+    const code = text(status.code, 40);
+    if (code === "lost" || code === "dropped") {
+      const counts = status.counts && typeof status.counts === "object" ? status.counts : {};
+      const what = Object.entries(counts).map(([topic, n]) => `${text(n, 12)} ${text(topic, 80)}`).join(", ");
+      addLine("lost", `${code}: ${what || "messages"}`);
+    } else if (status.level === "error") {
+      $("action-status").textContent = `bridge: ${text(status.msg, 200)}`;
+    }
+  }
+
+  function onClose() {
+    state.socket = null;
+    if (state.openedAt && Date.now() - state.openedAt > STABLE_AFTER_MS) state.backoffMs = BACKOFF_INITIAL_MS;
+    const wait = Math.round(state.backoffMs * (0.5 + Math.random() / 2));
+    state.backoffMs = Math.min(state.backoffMs * 2, BACKOFF_MAX_MS);
+    setState("connection", "disconnected", `disconnected; retrying in ${(wait / 1000).toFixed(1)} s`);
+    window.setTimeout(connect, wait);
+  }
+
+  function connect() {
+    const scheme = window.location.protocol === "https:" ? "wss://" : "ws://";
+    const query = TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : "";
+    setState("connection", "connecting", "connecting…");
+    let socket;
+    try {
+      socket = new WebSocket(`${scheme}${window.location.host}/${query}`);
+    } catch (error) {
+      onClose();
+      return;
+    }
+    state.openedAt = 0; // set when it opens: a refused attempt must not reset the backoff
+    state.socket = socket;
+    socket.addEventListener("open", onOpen);
+    socket.addEventListener("message", onMessage);
+    socket.addEventListener("close", onClose);
+  }
+
+  // --- controls -----------------------------------------------------------------------------
+
+  function publish(topic, msg, done) {
+    $("action-status").textContent = send({ op: "publish", topic, msg }) ? done : "not connected: nothing was sent";
+  }
+
+  function setupControls() {
+    $("wake").addEventListener("click", () => publish("wake_cmd", { data: true }, "wake sent"));
+    $("sleep").addEventListener("click", () => publish("wake_cmd", { data: false }, "sleep sent"));
+    $("mute").addEventListener("click", () => publish("voice_active", { data: false }, "mute sent"));
+    $("unmute").addEventListener("click", () => publish("voice_active", { data: true }, "unmute sent"));
+    $("prompt-form").addEventListener("submit", (event) => {
+      event.preventDefault();
+      const input = $("prompt-input");
+      const value = input.value.trim();
+      if (!value) return;
+      publish("prompt_text", { data: value }, `sent: "${text(value, 80)}"`);
+      input.value = "";
+    });
+  }
+
+  async function loadSettings() {
+    const query = TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : "";
+    try {
+      const response = await fetch(`monitor-config.json${query}`, { cache: "no-store" });
+      if (!response.ok) throw new Error(`HTTP ${response.status}`);
+      const settings = await response.json();
+      const page = { ...DEFAULTS.page };
+      for (const key of Object.keys(page)) {
+        const value = settings && settings.page ? settings.page[key] : undefined;
+        if (Number.isInteger(value) && value > 0) page[key] = value;
+      }
+      state.settings = { currency: text(settings.currency, 8) || DEFAULTS.currency, page };
+    } catch (error) {
+      $("action-status").textContent = `settings not loaded (${text(error.message, 80)}); using defaults`;
+    }
+  }
+
+  async function start() {
+    setupControls();
+    await loadSettings();
+    connect();
+  }
+
+  start();
+})();
