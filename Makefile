@@ -4,7 +4,7 @@
 SHELL := /bin/bash
 RUN := scripts/run.sh
 
-.PHONY: all bootstrap demo test unit lint format bench clean distclean
+.PHONY: all bootstrap demo test unit lint format bench soak clean distclean
 
 all: test
 
@@ -33,8 +33,13 @@ format: bootstrap
 	@$(RUN) ruff check --fix .
 	@$(RUN) ruff format .
 
+# every bench/bench_*.py; the figures also go to out/bench/summary.{md,json}
 bench: bootstrap
 	@$(RUN) python bench/run_all.py
+
+# an hour of conversation compressed into ~16 minutes: memory, CPU, losses, billed seconds
+soak: bootstrap
+	@$(RUN) python bench/soak.py
 
 clean:
 	rm -rf build install log .pytest_cache .mypy_cache .ruff_cache .hypothesis
