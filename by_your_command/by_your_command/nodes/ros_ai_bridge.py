@@ -1,9 +1,10 @@
 """ros_ai_bridge: rosbridge-v2 WebSocket server between the ROS graph and agents (docs/bridge.md).
 
 Thin node: ROS parameters in, `BridgeCore`/`BridgeServer` (pure, in bridge/) on an asyncio loop
-in a thread, rclpy callbacks handed over with `call_soon_threadsafe`. All allow-listed ROS
-subscriptions and publishers are created at startup, so a client's first publish is not lost to
-discovery; messages of topics nobody subscribes to are not even converted.
+in a thread, rclpy callbacks handed over with `call_soon_threadsafe`. Publishers are created at
+startup, so a client's first publish is not lost to discovery. State topics are subscribed at
+startup (their last value waits for late clients); every other topic only while a client wants it,
+so its publishers see whether anybody listens (a `prompt_voice` subscriber means an agent).
 Losses before the bridge are counted from gaps in each message's publication sequence number
 (while the topic has one publisher) and reported to the topic's subscribers; a state topic whose
 last publisher leaves has its cached value forgotten.
@@ -118,6 +119,8 @@ class _NodeGraph:
         self._always: set[str] = set()
         self._wanted: set[str] = set()  # read by rclpy callbacks: set membership is atomic under the GIL
         self._gaps: dict[str, SequenceGaps] = {}
+        self._rules: dict[str, TopicRule] = {}
+        self._subscriptions: dict[str, Any] = {}
         # Hand-offs to the loop: `_posted` is written only by the rclpy thread, `_routed` only by the
         # loop, so their difference is the backlog without a lock.
         self._posted = 0
@@ -130,18 +133,11 @@ class _NodeGraph:
         self, subscribe: list[tuple[TopicRule, str]], publish: list[tuple[TopicRule, str]]
     ) -> None:
         for rule, full in subscribe:
-            cls = message_class(rule.type)
+            self._classes[rule.type] = message_class(rule.type)  # an unknown type stops the start
+            self._rules[full] = rule
             if rule.topic_class == "state":
-                self._always.add(full)
-                self._wanted.add(full)  # the core remembers the current state for late subscribers
-            self._gaps[full] = SequenceGaps()
-            self._node.create_subscription(
-                cls,
-                full,
-                self._forwarder(full),
-                subscription_qos(rule, self._audio_history_depth),
-                event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched(full)),
-            )
+                self._always.add(full)  # the core remembers the current state for late subscribers
+                self._ros_subscribe(full)
         for rule, full in publish:
             cls = message_class(rule.type)
             self._classes[rule.type] = cls
@@ -198,11 +194,31 @@ class _NodeGraph:
             self.core.deliver(full, text)
 
     def subscribe(self, rule: TopicRule, full_topic: str) -> None:
-        self._wanted.add(full_topic)
+        self._ros_subscribe(full_topic)
 
     def unsubscribe(self, full_topic: str) -> None:
-        if full_topic not in self._always:
-            self._wanted.discard(full_topic)
+        # No client wants it: drop the ROS subscription too, so publishers see that nobody listens
+        # (the VAD reports an utterance nobody hears, a file source waits for an agent).
+        if full_topic in self._always:
+            return
+        self._wanted.discard(full_topic)
+        subscription = self._subscriptions.pop(full_topic, None)
+        if subscription is not None:
+            self._node.destroy_subscription(subscription)
+
+    def _ros_subscribe(self, full: str) -> None:
+        """Non-state topics are subscribed in ROS only while a client wants them."""
+        if full not in self._subscriptions:
+            rule = self._rules[full]
+            self._gaps[full] = SequenceGaps()
+            self._subscriptions[full] = self._node.create_subscription(
+                self._classes[rule.type],
+                full,
+                self._forwarder(full),
+                subscription_qos(rule, self._audio_history_depth),
+                event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched(full)),
+            )
+        self._wanted.add(full)
 
     def advertise(self, rule: TopicRule, full_topic: str) -> None:
         pass  # publishers exist from startup
