@@ -1,8 +1,10 @@
-"""Shared by bench_agent_latency.py and bench_barge_in.py: the agent's real graph as processes
-(ros_ai_bridge, simple_audio_player with a real-time WAV sink, `byc agent` with the OpenAI
-provider) against the OpenAI emulator on a thread of this process, a bench node standing in for
-the VAD, and the same-run baselines: a raw DDS publish→subscribe of an utterance chunk between two
-DDS participants, and a raw WebSocket round trip of that chunk as rosbridge JSON.
+"""Shared by bench_agent_latency.py, bench_barge_in.py and bench_frame_age.py: the agent's real
+graph as processes (ros_ai_bridge, simple_audio_player with a real-time WAV sink, optionally
+frame_forwarder, `byc agent` with the OpenAI or the Gemini provider) against that provider's
+emulator on a thread of this process (Gemini's over TLS with its own certificate, as the SDK
+requires), a bench node standing in for the VAD and the camera, and the same-run baselines: a raw
+DDS publish→subscribe of an utterance chunk between two DDS participants, and a raw WebSocket
+round trip of that chunk as rosbridge JSON.
 
 Discovery stays on this machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless set; run under
 `unshare -n` for a private network, as scripts/run_tests.sh does), in a namespace of its own.
@@ -32,12 +34,16 @@ import yaml
 from by_your_command.agents.bridge_port import BridgePort
 from by_your_command.agents.config import parse_agent_config
 from by_your_command.bridge.client_messages import Delivery
+from by_your_command.emulators import gemini_live
+from by_your_command.emulators import gemini_script as gemini
+from by_your_command.emulators.gemini_wire import decode_blob, field_value
 from by_your_command.emulators.openai_realtime import OpenAIRealtimeEmulator, start
 from by_your_command.emulators.openai_script import Script
 
 T = TypeVar("T")
 VAD_RATE = 16000
 CHUNK_MS = 100
+PROVIDERS = ("openai", "gemini")
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -58,28 +64,94 @@ def wait_until(condition: Callable[[], T | None], timeout: float, what: str) -> 
 # --- the emulator ------------------------------------------------------------------------------
 
 
-class EmulatorThread:
-    def __init__(self, script: Script) -> None:
+class _LoopThread:
+    def __init__(self) -> None:
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
         self._thread.start()
-        self.handle: OpenAIRealtimeEmulator = self._run(start(script=script))
 
     def _run(self, coroutine: Coroutine[Any, Any, T]) -> T:
         return asyncio.run_coroutine_threadsafe(coroutine, self._loop).result(timeout=10)
 
-    def received_types(self) -> list[str]:
-        async def read() -> list[str]:
-            return self.handle.received_types()
+    def _read(self, read: Callable[[], T]) -> T:
+        async def on_loop() -> T:
+            return read()
 
-        return self._run(read())
+        return self._run(on_loop())
+
+    def _stop_loop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout=5)
+
+
+class EmulatorThread(_LoopThread):
+    """The OpenAI Realtime emulator."""
+
+    def __init__(self, script: Script) -> None:
+        super().__init__()
+        self.handle: OpenAIRealtimeEmulator = self._run(start(script=script))
+
+    def provider_settings(self) -> dict[str, Any]:
+        return {"type": "openai", "websocket_base_url": self.handle.websocket_base_url}
+
+    def received_types(self) -> list[str]:
+        return self._read(self.handle.received_types)
 
     def stop(self) -> None:
         try:
             self._run(self.handle.stop())
         finally:
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(timeout=5)
+            self._stop_loop()
+
+
+class GeminiEmulatorThread(_LoopThread):
+    """The Gemini Live emulator (TLS: the SDK only speaks wss)."""
+
+    def __init__(self, script: gemini.Script) -> None:
+        super().__init__()
+        self.handle: gemini_live.GeminiLiveEmulator = self._run(gemini_live.start(script=script))
+
+    def provider_settings(self) -> dict[str, Any]:
+        return {"type": "gemini", "base_url": self.handle.base_url, "ca_file": str(self.handle.cert_file)}
+
+    def received_types(self) -> list[str]:
+        """One name per part of what the client sent: setup, clientContent, toolResponse, and for
+        realtimeInput each of activityStart, audio, video, text, activityEnd."""
+        parts = ("activityStart", "audio", "video", "text", "activityEnd", "audioStreamEnd")
+        out: list[str] = []
+        for record in self._read(lambda: list(self.handle.received)):
+            if record.kind == "realtimeInput":
+                out += [part for part in parts if field_value(record.body, part) is not None]
+            else:
+                out.append(record.kind)
+        return out
+
+    def frames_received(self) -> int:
+        return self._read(lambda: sum(1 for r in self.handle.received if _video(r.body) is not None))
+
+    def frame(self, index: int) -> bytes:
+        """The `index`th camera frame the client sent (JPEG)."""
+        videos = self._read(lambda: [v for r in self.handle.received if (v := _video(r.body)) is not None])
+        return decode_blob(field_value(videos[index], "data"), "video")
+
+    def stop(self) -> None:
+        try:
+            self._run(self.handle.stop())
+        finally:
+            self._stop_loop()
+
+
+def _video(body: dict[str, Any]) -> dict[str, Any] | None:
+    video = field_value(body, "video")
+    return video if isinstance(video, dict) else None
+
+
+def emulator_for(provider: str, script: Script | gemini.Script) -> EmulatorThread | GeminiEmulatorThread:
+    if provider == "gemini":
+        assert isinstance(script, gemini.Script)
+        return GeminiEmulatorThread(script)
+    assert isinstance(script, Script)
+    return EmulatorThread(script)
 
 
 # --- processes ---------------------------------------------------------------------------------
@@ -276,7 +348,7 @@ class BenchNode:
 @dataclass
 class AgentGraph:
     bench: BenchNode
-    emulator: EmulatorThread
+    emulator: EmulatorThread | GeminiEmulatorThread
     processes: list[Process]
 
     def check(self) -> None:
@@ -285,13 +357,20 @@ class AgentGraph:
 
 
 @contextmanager
-def agent_graph(script: Script, label: str, **settings: Any) -> Iterator[AgentGraph]:
-    """Player, bridge and agent processes in a fresh namespace, the emulator, the bench node."""
+def agent_graph(
+    script: Script | gemini.Script,
+    label: str,
+    provider: str = "openai",
+    forwarder: tuple[str, ...] | None = None,
+    **settings: Any,
+) -> Iterator[AgentGraph]:
+    """Player (and frame_forwarder with `forwarder` parameters), bridge and agent processes in a
+    fresh namespace, the `provider`'s emulator, the bench node."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    namespace = f"/bench_{label}_{os.getpid()}"
+    namespace = f"/bench_{label}_{provider}_{os.getpid()}"
     with ExitStack() as stack:
         tmp = Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        emulator = EmulatorThread(script)
+        emulator = emulator_for(provider, script)
         stack.callback(emulator.stop)
         bench = BenchNode(namespace)
         stack.callback(bench.close)
@@ -320,6 +399,17 @@ def agent_graph(script: Script, label: str, **settings: Any) -> Iterator[AgentGr
             return bool(bench.speaking) and bench.node.count_subscribers(bench.topic("response_voice")) > 0
 
         wait_until(player_up, 60, "the player")
+        if forwarder is not None:
+            camera_node = started(Process(node_command("frame_forwarder", namespace, *forwarder)))
+
+            def forwarder_up() -> bool:
+                camera_node.check()
+                node = bench.node
+                subscribed: int = node.count_subscribers(bench.topic("camera/image_raw"))
+                publishing: int = node.count_publishers(bench.topic("camera_forwarded"))
+                return subscribed > 0 and publishing > 0
+
+            wait_until(forwarder_up, 60, "the frame forwarder")
         bridge = started(
             Process(node_command("ros_ai_bridge", namespace, "port:=0", "diagnostics_period_s:=0.2"))
         )
@@ -334,7 +424,7 @@ def agent_graph(script: Script, label: str, **settings: Any) -> Iterator[AgentGr
             "pause_timeout_s": 600.0,
             "conversation_timeout_s": 3600.0,
             **settings,
-            "provider": {"type": "openai", "websocket_base_url": emulator.handle.websocket_base_url},
+            "provider": emulator.provider_settings(),
         }
         config = tmp / "agent.yaml"
         config.write_text(yaml.safe_dump(data))
@@ -343,6 +433,7 @@ def agent_graph(script: Script, label: str, **settings: Any) -> Iterator[AgentGr
                 [sys.executable, "-m", "by_your_command.cli.byc", "agent", "--config", str(config)],
                 {
                     "OPENAI_API_KEY": "sk-bench-not-a-key",
+                    "GEMINI_API_KEY": "bench-not-a-key",
                     "BYC_BRIDGE_URL": f"ws://127.0.0.1:{match.group(1)}",
                 },
             )

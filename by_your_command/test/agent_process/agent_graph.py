@@ -1,6 +1,6 @@
-"""Helpers for the agent process tests: the OpenAI emulator on its own event-loop thread (so a
-synchronous test can read what the agent sent), node and agent processes with their output
-collected, and a probe node that plays the microphone side and records every output topic."""
+"""Helpers for the agent process tests: the OpenAI and Gemini emulators on their own event-loop
+thread (so a synchronous test can read what the agent sent), node and agent processes with their
+output collected, and a probe node that plays the microphone side and records every output topic."""
 
 from __future__ import annotations
 
@@ -8,10 +8,12 @@ import asyncio
 import base64
 import json
 import re
+import signal
 import subprocess
 import threading
-from collections.abc import Callable, Coroutine, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Coroutine, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -26,6 +28,9 @@ from std_msgs.msg import Bool, String
 from by_your_command.agents.bridge_port import BridgePort
 from by_your_command.agents.config import parse_agent_config
 from by_your_command.audio.pcm import read_wav
+from by_your_command.emulators import gemini_live
+from by_your_command.emulators.gemini_script import Script as GeminiScript
+from by_your_command.emulators.gemini_wire import decode_blob, field_value
 from by_your_command.emulators.openai_realtime import OpenAIRealtimeEmulator, ReceivedEvent, start
 from by_your_command.emulators.openai_script import Script
 from by_your_command.nodes._qos import LATCHED, RELIABLE
@@ -35,6 +40,7 @@ T = TypeVar("T")
 # Recognisable, so a test can prove it never reaches any log line.
 FAKE_KEY = "sk-test-Rec0gnisableFakeKey-7f3a9c1e5b"
 CORPUS = REPO_ROOT / "by_your_command" / "test" / "data" / "corpus"
+CONFIG_DIR = REPO_ROOT / "by_your_command" / "config"
 VAD_RATE = 16000
 BRIDGE_OUTPUTS = (
     "prompt_transcript",
@@ -57,15 +63,13 @@ def corpus_utterance(index: int = 0, session: str = "clean_en_us") -> np.ndarray
 # --- the emulator ------------------------------------------------------------------------------
 
 
-class EmulatorThread:
-    """`emulators.openai_realtime` served from a private loop; every read hops onto that loop."""
+class _LoopThread:
+    """An event loop on a daemon thread; `_run` / `_read` hop onto it from the test's thread."""
 
-    def __init__(self, script: Script) -> None:
+    def __init__(self) -> None:
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
         self._thread.start()
-        self.handle: OpenAIRealtimeEmulator = self._run(start(script=script))
-        self.url = self.handle.websocket_base_url
 
     def _run(self, coroutine: Coroutine[Any, Any, T]) -> T:
         return asyncio.run_coroutine_threadsafe(coroutine, self._loop).result(timeout=10)
@@ -75,6 +79,19 @@ class EmulatorThread:
             return read()
 
         return self._run(on_loop())
+
+    def _stop_loop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout=5)
+
+
+class EmulatorThread(_LoopThread):
+    """`emulators.openai_realtime` served from a private loop; every read hops onto that loop."""
+
+    def __init__(self, script: Script) -> None:
+        super().__init__()
+        self.handle: OpenAIRealtimeEmulator = self._run(start(script=script))
+        self.url = self.handle.websocket_base_url
 
     def received(self) -> list[ReceivedEvent]:
         return self._read(lambda: list(self.handle.received))
@@ -100,13 +117,84 @@ class EmulatorThread:
         try:
             self._run(self.handle.stop())
         finally:
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(timeout=5)
+            self._stop_loop()
 
 
 @contextmanager
 def emulator(script: Script) -> Iterator[EmulatorThread]:
     running = EmulatorThread(script)
+    try:
+        yield running
+    finally:
+        running.stop()
+
+
+class GeminiEmulatorThread(_LoopThread):
+    """`emulators.gemini_live` (TLS, a certificate made at start) served from a private loop."""
+
+    def __init__(self, script: GeminiScript) -> None:
+        super().__init__()
+        self.handle: gemini_live.GeminiLiveEmulator = self._run(gemini_live.start(script=script))
+        self.base_url = self.handle.base_url
+        self.ca_file = str(self.handle.cert_file)
+
+    def received(self, connection: int | None = None) -> list[gemini_live.ReceivedMessage]:
+        records = self._read(lambda: list(self.handle.received))
+        return [r for r in records if connection is None or r.connection == connection]
+
+    def bodies(self, kind: str, connection: int | None = None) -> list[dict[str, Any]]:
+        return [r.body for r in self.received(connection) if r.kind == kind]
+
+    def steps(self, connection: int | None = None) -> list[str]:
+        """What the client sent, in order, one name per part: setup, clientContent, toolResponse,
+        and for realtimeInput each of activityStart, audio, video, text, activityEnd."""
+        out: list[str] = []
+        for record in self.received(connection):
+            if record.kind != "realtimeInput":
+                out.append(record.kind)
+                continue
+            parts = ("activityStart", "audio", "video", "text", "activityEnd", "audioStreamEnd")
+            out += [part for part in parts if field_value(record.body, part) is not None]
+        return out
+
+    def frames(self, connection: int | None = None) -> list[bytes]:
+        """Every camera frame sent (realtimeInput.video), decoded, in order."""
+        return [
+            decode_blob(field_value(field_value(body, "video"), "data"), "video")
+            for body in self.bodies("realtimeInput", connection)
+            if field_value(body, "video") is not None
+        ]
+
+    def audio(self, connection: int | None = None) -> bytes:
+        """The PCM the client sent as realtime audio (16 kHz)."""
+        return b"".join(
+            decode_blob(field_value(field_value(body, "audio"), "data"), "audio")
+            for body in self.bodies("realtimeInput", connection)
+            if field_value(body, "audio") is not None
+        )
+
+    def connections(self) -> int:
+        return self._read(lambda: len(self.handle.handshakes))
+
+    def handshakes(self) -> list[gemini_live.Handshake]:
+        return self._read(lambda: list(self.handle.handshakes))
+
+    def closes(self) -> list[gemini_live.Closed]:
+        return self._read(lambda: list(self.handle.closes))
+
+    def audio_outside_activity_ms(self) -> int:
+        return self._read(lambda: sum(s.audio_outside_activity_ms for s in self.handle.sessions.values()))
+
+    def stop(self) -> None:
+        try:
+            self._run(self.handle.stop())
+        finally:
+            self._stop_loop()
+
+
+@contextmanager
+def gemini_emulator(script: GeminiScript) -> Iterator[GeminiEmulatorThread]:
+    running = GeminiEmulatorThread(script)
     try:
         yield running
     finally:
@@ -180,6 +268,17 @@ def processor_process(namespace: str) -> Iterator[subprocess.Popen[str]]:
         yield process
 
 
+@contextmanager
+def frame_forwarder_process(namespace: str, *params: str) -> Iterator[subprocess.Popen[str]]:
+    """frame_forwarder on camera/image_raw (raw frames) → camera_forwarded; `params` as name:=value."""
+    args = [arg for param in params for arg in ("-p", param)]
+    command = python_module(
+        "by_your_command.nodes.frame_forwarder", "--ros-args", "-r", f"__ns:={namespace}", *args
+    )
+    with running_process(command) as process:
+        yield process
+
+
 def agent_config(
     tmp_path: Path, emulator_url: str, agent_id: str = "talker", **settings: Any
 ) -> tuple[Path, dict[str, Any]]:
@@ -195,12 +294,29 @@ def agent_config(
     return path, data
 
 
+def gemini_agent_config(
+    tmp_path: Path, api: GeminiEmulatorThread, shipped: str = "agent_gemini.yaml", **settings: Any
+) -> tuple[Path, dict[str, Any]]:
+    """A shipped Gemini agent config (config/`shipped`) pointed at the emulator (its base URL and
+    certificate); `settings` override AgentConfig keys, `provider` is merged into the provider's."""
+    data: dict[str, Any] = yaml.safe_load((CONFIG_DIR / shipped).read_text())
+    provider = {**data["provider"], "base_url": api.base_url, "ca_file": api.ca_file}
+    data.update(pause_timeout_s=60.0)  # no session cycling in the middle of a test unless it asks
+    data.update(settings)
+    data["provider"] = {**provider, **settings.get("provider", {})}
+    path = tmp_path / f"{data['agent_id']}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path, data
+
+
 @contextmanager
 def agent_process(
     config: Path, bridge_port: int, key: str = FAKE_KEY, *options: str
 ) -> Iterator[tuple[subprocess.Popen[str], Output]]:
     command = python_module("by_your_command.cli.byc", "agent", "--config", str(config), *options)
-    env = {"OPENAI_API_KEY": key, "BYC_BRIDGE_URL": f"ws://127.0.0.1:{bridge_port}"}
+    # Every provider's key variable, so no real key from the caller's environment is ever used.
+    keys = {name: key for name in ("OPENAI_API_KEY", "GOOGLE_API_KEY", "GEMINI_API_KEY")}
+    env = {**keys, "BYC_BRIDGE_URL": f"ws://127.0.0.1:{bridge_port}"}
     with running_process(command, env=env) as process:
         output = Output(process)
         try:
@@ -273,14 +389,14 @@ class GraphProbe:
     def metric_records(self) -> list[dict[str, Any]]:
         return [json.loads(message.data) for message in list(self.metrics)]
 
-    def say(self, pcm: np.ndarray, chunk_ms: int = 100) -> None:
-        """One utterance as the VAD publishes it: chunks, the last one carrying the end marker."""
+    def utterance(self, pcm: np.ndarray, chunk_ms: int = 100) -> list[AudioDataUtterance]:
+        """One utterance's chunks as the VAD publishes them, the last one carrying the end marker."""
         self._utterances += 1
         utterance_id = 1_700_000_000_000_000_000 + self._utterances
         step = VAD_RATE * chunk_ms // 1000
         pieces = [pcm[k : k + step] for k in range(0, len(pcm), step)] or [pcm]
-        for sequence, piece in enumerate(pieces):
-            message = AudioDataUtterance(
+        return [
+            AudioDataUtterance(
                 int16_data=piece.astype(np.int16).tolist(),
                 utterance_id=utterance_id,
                 chunk_sequence=sequence,
@@ -288,15 +404,28 @@ class GraphProbe:
                 channels=1,
                 is_utterance_end=sequence == len(pieces) - 1,
             )
+            for sequence, piece in enumerate(pieces)
+        ]
+
+    def say(self, pcm: np.ndarray, chunk_ms: int = 100) -> None:
+        """One utterance as the VAD publishes it: chunks, the last one carrying the end marker."""
+        for message in self.utterance(pcm, chunk_ms):
             self.voice.publish(message)
 
     def type_text(self, text: str) -> None:
         self.text.publish(String(data=text))
 
-    def wait_nodes(self, check: Callable[[], None], player: bool = False, processor: bool = False) -> None:
-        """Until the player / command processor are in the graph. Start them before the bridge and
-        wait here: the bridge then matches them while it starts, so an agent's first command or reply
-        is not lost to DDS discovery (nothing in ROS queues for a subscriber not yet matched)."""
+    def wait_nodes(
+        self,
+        check: Callable[[], None],
+        player: bool = False,
+        processor: bool = False,
+        forwarder: bool = False,
+    ) -> None:
+        """Until the player / command processor / frame forwarder are in the graph. Start them before
+        the bridge and wait here: the bridge then matches them while it starts, so an agent's first
+        command or reply is not lost to DDS discovery (nothing in ROS queues for a subscriber not
+        yet matched)."""
         node = self.probe.node
         topic = self.probe.topic
 
@@ -309,9 +438,14 @@ class GraphProbe:
                 node.count_subscribers(topic("response_cmd")) > 1
                 and node.count_publishers(topic("command_status")) > 0
             )
-            return player_up and processor_up
+            forwarder_up = not forwarder or (
+                node.count_subscribers(topic("camera/image_raw")) > 0
+                and node.count_publishers(topic("camera_forwarded")) > 0
+                and node.count_subscribers(topic("voice_activity")) > 0
+            )
+            return player_up and processor_up and forwarder_up
 
-        wait_for(up, timeout=40, what="the player / command processor in the graph")
+        wait_for(up, timeout=60, what="the player / command processor / frame forwarder in the graph")
 
     def bridge_values(self, namespace: str) -> dict[str, str] | None:
         for array in reversed(list(self.diagnostics)):
@@ -368,3 +502,61 @@ def until(condition: Callable[[], Any], what: str, check: Callable[[], None], ti
         return condition()
 
     return wait_for(poll, timeout=timeout, interval=0.02, what=what)
+
+
+# --- a Gemini agent graph ----------------------------------------------------------------------
+
+
+@dataclass
+class RunningAgent:
+    process: subprocess.Popen[str]
+    output: Output
+    settings: dict[str, Any]
+
+    def stop(self) -> list[str]:
+        """SIGTERM, as Ctrl-C or `ros2 launch` would: the agent closes its session and exits 0."""
+        self.process.send_signal(signal.SIGTERM)
+        assert self.process.wait(timeout=30) == 0, str(self.output)
+        lines = self.output.finish()
+        assert FAKE_KEY not in "\n".join(lines), "the API key reached a log line"
+        return lines
+
+
+@dataclass
+class AgentGraph:
+    probe: GraphProbe
+    agents: list[RunningAgent]
+    check: Callable[[], None]  # fails at once when any process of the graph died
+
+
+@contextmanager
+def gemini_graph(
+    namespace: str,
+    tmp_path: Path,
+    agents: Sequence[tuple[GeminiEmulatorThread, str, dict[str, Any]]],
+    wav: Path | None = None,
+    processor: bool = False,
+    forwarder: Sequence[str] | None = None,
+) -> Iterator[AgentGraph]:
+    """The probe, the nodes asked for (player with a WAV sink, command processor, frame forwarder
+    with `forwarder` parameters), the bridge, and one `byc agent` per (emulator, shipped config,
+    settings), each subscribed at the bridge."""
+    with ExitStack() as stack:
+        probe = stack.enter_context(graph_probe(namespace))
+        nodes: list[subprocess.Popen[str]] = []
+        if wav is not None:
+            nodes.append(stack.enter_context(player_process(namespace, wav)))
+        if processor:
+            nodes.append(stack.enter_context(processor_process(namespace)))
+        if forwarder is not None:
+            nodes.append(stack.enter_context(frame_forwarder_process(namespace, *forwarder)))
+        probe.wait_nodes(alive(*nodes), wav is not None, processor, forwarder is not None)
+        port, _ = stack.enter_context(bridge_process(namespace))
+        running = []
+        for api, shipped, settings in agents:
+            config, data = gemini_agent_config(tmp_path, api, shipped, **settings)
+            process, output = stack.enter_context(agent_process(config, port))
+            running.append(RunningAgent(process, output, data))
+        check = alive(*(agent.process for agent in running), *nodes)
+        probe.wait_agents_ready(namespace, [setup_requests(agent.settings) for agent in running], 60.0)
+        yield AgentGraph(probe, running, check)

@@ -1,0 +1,116 @@
+"""The Gemini Live provider against the real API (marker `live`: skipped without GOOGLE_API_KEY or
+GEMINI_API_KEY, never run in CI). No ROS: one text turn and one short voice turn (espeak-ng speech
+at 16 kHz, bracketed by activityStart / activityEnd as our VAD does) through the provider on the
+official google-genai SDK, each answered with words, 24 kHz audio and billed usage.
+
+    GEMINI_API_KEY=... scripts/run_tests.sh by_your_command/test/agent_process/test_gemini_live.py
+    BYC_LIVE_GEMINI_MODEL=gemini-3.8-live ...   # default: the provider's default model
+
+It costs a fraction of a cent. Against `byc emulate gemini` (GOOGLE_GEMINI_BASE_URL=<its base URL>,
+SSL_CERT_FILE=<its certificate>, any key) it checks the test itself without spending.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import subprocess
+from collections.abc import Awaitable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from by_your_command.agents.events import (
+    AssistantAudio,
+    AssistantText,
+    AssistantTranscript,
+    ProviderError,
+    ProviderEvent,
+    ResponseDone,
+    ResponseStatus,
+    Usage,
+)
+from by_your_command.agents.provider import SessionSetup
+from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
+from by_your_command.audio.pcm import StreamResampler, read_wav, to_mono
+
+KEY = os.environ.get("GOOGLE_API_KEY") or os.environ.get("GEMINI_API_KEY")  # google-genai's order
+pytestmark = [
+    pytest.mark.live,
+    pytest.mark.timeout(120),
+    pytest.mark.skipif(not KEY, reason="needs GOOGLE_API_KEY or GEMINI_API_KEY"),
+]
+
+MODEL = os.environ.get("BYC_LIVE_GEMINI_MODEL", GeminiLiveConfig().model)
+SETUP = SessionSetup(instructions="You are a test robot. Answer every question in at most five words.")
+REPLY_DEADLINE_S = 60.0
+
+
+async def reply(provider: GeminiLiveProvider) -> list[ProviderEvent]:
+    """The events of one reply, up to and including its ResponseDone."""
+    events: list[ProviderEvent] = []
+
+    async def collect() -> None:
+        async for event in provider.events():
+            events.append(event)
+            if isinstance(event, ResponseDone):
+                return
+            if isinstance(event, ProviderError):
+                raise AssertionError(f"the API sent an error: {event.code}: {event.message}")
+
+    await asyncio.wait_for(collect(), REPLY_DEADLINE_S)
+    return events
+
+
+def check_spoken_reply(events: list[ProviderEvent]) -> Usage:
+    done = events[-1]
+    assert isinstance(done, ResponseDone) and done.status is ResponseStatus.COMPLETED, done
+    audio = b"".join(e.pcm for e in events if isinstance(e, AssistantAudio))
+    words = [e.text for e in events if isinstance(e, (AssistantTranscript, AssistantText)) and e.final]
+    assert len(audio) > 24000 * 2 // 10, "less than 100 ms of reply audio"
+    assert {e.sample_rate for e in events if isinstance(e, AssistantAudio)} == {24000}
+    assert words and words[0].strip(), "no words in the reply (output transcription)"
+    assert done.usage.output_tokens > 0 and done.usage.input_tokens > 0
+    return done.usage
+
+
+def espeak(text: str, path: Path) -> np.ndarray:
+    """Synthetic speech at Gemini's 16 kHz input rate (espeak-ng writes 22.05 kHz)."""
+    subprocess.run(["espeak-ng", "-v", "en-us", "-s", "150", "-w", str(path), text], check=True)
+    samples, rate, channels = read_wav(path)
+    resampler = StreamResampler(rate, 16000)
+    mono = to_mono(samples, channels)
+    return np.concatenate([resampler.push(mono), resampler.flush()]).astype(np.int16)
+
+
+def test_a_text_turn_and_a_voice_turn_against_the_real_api(tmp_path: Path) -> None:
+    if shutil.which("espeak-ng") is None:
+        pytest.skip("espeak-ng is needed for the voice turn (apt-get install espeak-ng)")
+    speech = espeak("What colour is the sky on a clear day?", tmp_path / "question.wav")
+
+    async def main() -> None:
+        provider = GeminiLiveProvider(GeminiLiveConfig(model=MODEL), api_key=KEY)
+        try:
+            await provider.connect(SETUP)
+            check_spoken_reply(await _turn(provider, provider.send_text("Say hello to the robot team.")))
+            # A voice turn: 100 ms chunks as our VAD streams them (the first opens the activity),
+            # then activityEnd and the reply.
+            pcm = speech.astype("<i2").tobytes()
+            step = 2 * 1600
+            for start in range(0, len(pcm), step):
+                await provider.send_audio(pcm[start : start + step])
+            usage = check_spoken_reply(await _turn(provider, provider.end_of_turn()))
+            assert usage.input_audio_tokens > 0, "the user's audio was not billed: was it heard?"
+        finally:
+            await provider.close()
+
+    asyncio.run(main())
+
+
+async def _turn(provider: GeminiLiveProvider, sending: Awaitable[None]) -> list[ProviderEvent]:
+    """Send (`sending`) while already reading, so no early event is missed."""
+    reading = asyncio.ensure_future(reply(provider))
+    await sending
+    return await reading
