@@ -150,7 +150,8 @@ class AgentRuntime:
         self._route_deferrals = 0
         self._frame: tuple[CameraFrame, float] | None = None
         self._frame_sent = True
-        self._asked_turn = 0  # the voice turn that got a frame taken while it was being asked
+        self._asked_turn = 0  # the voice turn that got its frame (one per question)
+        self._utterance_ended_at = float("-inf")  # frames kept from before this are stale
         self._shown: CameraFrame | None = None  # the last frame sent to the model (detections' pixels)
         self._shown_info: FrameInfo | None = None
         self._streams = 0
@@ -389,7 +390,10 @@ class AgentRuntime:
             turn.held = True
             self._barge_turn = turn
         self._turn_in = turn
-        self._send_frame(session)
+        # A frame forwarded at the question's onset goes with it; one left over from while the
+        # previous question was spoken does not (the model would describe the past).
+        if self._send_frame(session, since=self._utterance_ended_at):
+            self._asked_turn = turn.number
         await self._continue_utterance(turn, chunk)
 
     async def _continue_utterance(self, turn: Turn, chunk: UtteranceChunk) -> None:
@@ -429,6 +433,7 @@ class AgentRuntime:
             self._append_audio(turn, turn.resample(b"", turn.resampler.from_rate, True))
         turn.ended_at = now
         self._turn_in = None
+        self._utterance_ended_at = now
         if turn.utterance_id is not None:
             self._closed_utterances.append(turn.utterance_id)
         if self._barge is not None and self._barge_turn is turn:
@@ -487,14 +492,19 @@ class AgentRuntime:
             self._asked_turn = turn.number
             self._send_frame(self._session)
 
-    def _send_frame(self, session: Session) -> None:
+    def _send_frame(self, session: Session, since: float = float("-inf")) -> bool:
+        """Send the kept frame if it is unsent, arrived after `since` and is fresh; True if sent."""
         if self._frame is None or self._frame_sent:
-            return
+            return False
         frame, at = self._frame
-        if self._clock.now() - at <= self.config.max_frame_age_s:
-            session.send(SendImage(frame.jpeg))
-            self._shown, self._shown_info = frame, None
+        if at <= since:
+            return False
         self._frame_sent = True
+        if self._clock.now() - at > self.config.max_frame_age_s:
+            return False
+        session.send(SendImage(frame.jpeg))
+        self._shown, self._shown_info = frame, None
+        return True
 
     def _shown_frame(self) -> FrameInfo | None:
         """The last frame the model was shown, with its size read from the JPEG (0 x 0: unreadable)."""

@@ -119,6 +119,28 @@ def test_camera_frame_goes_with_the_next_turn_and_never_opens_a_session() -> Non
     run_virtual(scenario())
 
 
+def test_each_question_gets_one_frame_from_its_own_time_never_one_left_from_the_last() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=0.2), spoken_reply("r2", seconds=0.2))
+        async with running_agent(AgentConfig(), factory) as agent:
+            agent.port.push(CameraFrame(b"\xff\xd8onset-1"))  # forwarded at the first question's onset
+            await speak(agent.port, 1, seconds=0.6, end=False)
+            agent.port.push(CameraFrame(b"\xff\xd8during-1"))  # the forwarder's later chunk triggers
+            await speak_end(agent, 1, sequence=6)
+            await asyncio.sleep(1.0)
+            # The second question: its first chunk comes before its own onset frame does.
+            await speak(agent.port, 2, seconds=0.3, end=False)
+            agent.port.push(CameraFrame(b"\xff\xd8onset-2"))
+            agent.port.push(CameraFrame(b"\xff\xd8during-2"))
+            await speak_end(agent, 2, sequence=3)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        images = [size for name, size in factory.last.calls if name == "image"]
+        assert images == [len(b"\xff\xd8onset-1"), len(b"\xff\xd8onset-2")]
+
+    run_virtual(scenario())
+
+
 def test_a_second_turn_waits_for_the_reply_in_progress() -> None:
     async def scenario() -> None:
         factory = FakeFactory(spoken_reply("r1", seconds=1.0, pace_s=0.2), spoken_reply("r2", seconds=0.2))
