@@ -9,6 +9,10 @@ from typing import Any
 
 import yaml
 
+# Config files are a few KB; reading (and parsing) a huge one would only stall startup.
+MAX_FILE_BYTES = 1 << 20
+MAX_FLOW_DEPTH = 64
+
 
 class LocatedDict(dict[str, Any]):
     """A YAML mapping that knows the line of itself and of each of its keys (1-based)."""
@@ -34,7 +38,22 @@ class ConfigError(Exception):
         return f"{where}: {self.key}: {self.message}" if self.key else f"{where}: {self.message}"
 
 
-class _LocatingLoader(yaml.SafeLoader):
+class BoundedSafeLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses flow collections (`[`, `{`) nested deeper than MAX_FLOW_DEPTH.
+
+    PyYAML's scanner does work proportional to the flow depth for every token, so "[" * 2000 is
+    3 s of CPU before the composer's recursion gives up; real config files nest a few levels.
+    """
+
+    def fetch_flow_collection_start(self, TokenClass: Any) -> None:  # noqa: N803 - PyYAML's name
+        if self.flow_level >= MAX_FLOW_DEPTH:
+            raise yaml.scanner.ScannerError(
+                None, None, f"collections nested deeper than {MAX_FLOW_DEPTH} levels", self.get_mark()
+            )
+        super().fetch_flow_collection_start(TokenClass)
+
+
+class _LocatingLoader(BoundedSafeLoader):
     pass
 
 
@@ -69,9 +88,17 @@ _LocatingLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, 
 def load_located_yaml(path: Path) -> LocatedDict:
     """Load a YAML file whose top level must be a mapping; errors become ConfigError with a line."""
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as file:
+            raw = file.read(MAX_FILE_BYTES + 1)
     except OSError as error:
         raise ConfigError(str(path), "", 0, f"cannot read file: {error.strerror or error}") from error
+    if len(raw) > MAX_FILE_BYTES:
+        raise ConfigError(str(path), "", 0, f"larger than {MAX_FILE_BYTES} bytes: not a config file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line = raw[: error.start].count(b"\n") + 1
+        raise ConfigError(str(path), "", line, f"not UTF-8 text (byte {error.start})") from None
     try:
         data = yaml.load(text, Loader=_LocatingLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.MarkedYAMLError as error:
@@ -79,6 +106,8 @@ def load_located_yaml(path: Path) -> LocatedDict:
         raise ConfigError(str(path), "", line, f"invalid YAML: {error.problem}") from error
     except yaml.YAMLError as error:
         raise ConfigError(str(path), "", 0, f"invalid YAML: {error}") from error
+    except RecursionError:  # PyYAML composes recursively: "[[[[...]]]]" a few hundred deep
+        raise ConfigError(str(path), "", 0, "invalid YAML: nested too deeply") from None
     if not isinstance(data, LocatedDict):
         raise ConfigError(str(path), "", 1, "the file must be a YAML mapping at top level")
     return data
