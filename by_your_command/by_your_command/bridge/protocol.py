@@ -23,8 +23,9 @@ MAX_ID_CHARS = 128
 MAX_ID_INT = 2**63 - 1
 PREVIEW_CHARS = 64  # client strings quoted in replies and logs are cut to this
 
-_TYPE_RE = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z][A-Za-z0-9_]*)$")
-_TOPIC_RE = re.compile(r"^/?[A-Za-z~][A-Za-z0-9_/~]*$")
+# Used with fullmatch: `$` would also match before a final newline ("prompt_text\n").
+_TYPE_RE = re.compile(r"([A-Za-z][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z][A-Za-z0-9_]*)")
+_TOPIC_RE = re.compile(r"/?[A-Za-z~][A-Za-z0-9_/~]*")
 
 
 class ProtocolError(ValueError):
@@ -100,7 +101,7 @@ def load_json(text: str | bytes, max_depth: int = MAX_JSON_DEPTH) -> Any:
 
 def normalize_type(type_name: str) -> str:
     """`std_msgs/String` or `std_msgs/msg/String` → `std_msgs/msg/String`; anything else is an error."""
-    match = _TYPE_RE.match(type_name)
+    match = _TYPE_RE.fullmatch(type_name)
     if match is None:
         raise ValueError(f"invalid message type {type_name!r} (expected pkg/Type or pkg/msg/Type)")
     return f"{match.group(1)}/msg/{match.group(2)}"
@@ -171,7 +172,7 @@ MAX_TOPIC_CHARS = 256
 
 def _topic(data: dict[str, Any], op: str, request_id: RequestId | None) -> str:
     topic = _string(data, "topic", op, request_id)
-    if len(topic) > MAX_TOPIC_CHARS or not _TOPIC_RE.match(topic) or "//" in topic or topic.endswith("/"):
+    if len(topic) > MAX_TOPIC_CHARS or not _TOPIC_RE.fullmatch(topic) or "//" in topic or topic.endswith("/"):
         raise ProtocolError(f"invalid topic name {preview(topic)}", request_id, op)
     return topic
 

@@ -125,6 +125,11 @@ class BridgeServer:
     def _check_origin_and_token(
         self, peer: str, request: Request, token_needed: bool = True
     ) -> Response | None:
+        # A credential header given twice is ambiguous (which one counts?): refuse it plainly.
+        for name in ("Origin", "Authorization"):
+            if len(request.headers.get_all(name)) > 1:
+                self._refused(peer, f"repeated {name} header")
+                return _refusal(HTTPStatus.BAD_REQUEST, f"the {name} header may appear only once\n")
         origin = request.headers.get("Origin")
         # A browser always sends Origin; agents and roslibpy send none. A page from anywhere else
         # may not drive the robot, even on loopback and even with a valid (stolen) token.
