@@ -81,7 +81,7 @@ def make_speech(path: Path, minutes: float) -> tuple[int, float]:
 # --- /proc sampling ----------------------------------------------------------------------------
 
 
-_VAD_STATS = re.compile(r"\[silero_vad_node\].* utterances=(\d+) .*unheard_utterances=(\d+)")
+_VAD_STATS = re.compile(r"\[silero_vad_node\s*\].* utterances=(\d+) .*unheard_utterances=(\d+)")
 
 
 def vad_counts(graph_log: Path) -> tuple[int, int]:
@@ -250,7 +250,9 @@ def report(
         half = len(entry.times) // 2
         slope = _slope_mb_per_h(entry.times[half:], entry.rss_mb[half:])
         cpu = entry.cpu_percent()
-        emit("rss_slope", slope, "MB/h", process=name, rss_mid=entry.rss_mb[half], rss_end=entry.rss_mb[-1])
+        last = len(entry.rss_mb) - 1
+        quarters = [round(entry.rss_mb[last * q // 4], 1) for q in range(5)]  # growth, or a plateau?
+        emit("rss_slope", slope, "MB/h", process=name, rss_quarters_mb=quarters)
         emit("cpu", cpu, "% of one core", process=name)
         print(f"{name:34} {entry.rss_mb[half]:10.1f} {entry.rss_mb[-1]:10.1f} {slope:13.2f} {cpu:6.1f}")
 
