@@ -79,6 +79,8 @@ def test_spoken_wake_up_wakes_a_sleeping_node_and_nothing_asleep_is_published(
 
         speaker.say(wake_up)
         wait(lambda: states[-1].data == "awake", "spoken 'wake up' to wake the node")
+        # /rosout and attention_state are two topics: no order between them is promised.
+        wait(lambda: "attention: awake" in lines, "the node's log line for the change")
         decisions = [
             x for x in lines if "wake phrase" in x or "phrase heard" in x or x.startswith("attention:")
         ]
