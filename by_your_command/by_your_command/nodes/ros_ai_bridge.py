@@ -2,9 +2,10 @@
 
 Thin node: ROS parameters in, `BridgeCore`/`BridgeServer` (pure, in bridge/) on an asyncio loop
 in a thread, rclpy callbacks handed over with `call_soon_threadsafe`. Publishers are created at
-startup, so a client's first publish is not lost to discovery. State topics are subscribed at
-startup (their last value waits for late clients); every other topic only while a client wants it,
-so its publishers see whether anybody listens (a `prompt_voice` subscriber means an agent).
+startup, so a client's first publish is not lost to discovery, and so are the subscriptions of
+every topic but the `audio` class (state topics keep their last value for late clients). Audio
+topics are subscribed in ROS only while a client wants them, so their publishers see whether
+anybody listens (a `prompt_voice` subscriber means an agent).
 Losses before the bridge are counted from gaps in each message's publication sequence number
 (while the topic has one publisher) and reported to the topic's subscribers; a state topic whose
 last publisher leaves has its cached value forgotten.
@@ -137,7 +138,11 @@ class _NodeGraph:
             self._rules[full] = rule
             if rule.topic_class == "state":
                 self._always.add(full)  # the core remembers the current state for late subscribers
-                self._ros_subscribe(full)
+                self._wanted.add(full)
+            if rule.topic_class != "audio":
+                # Matched long before a client needs it: a verdict or prompt published right after
+                # an agent connects is not lost to DDS discovery. Audio is subscribed on demand.
+                self._create_subscription(full)
         for rule, full in publish:
             cls = message_class(rule.type)
             self._classes[rule.type] = cls
@@ -194,31 +199,32 @@ class _NodeGraph:
             self.core.deliver(full, text)
 
     def subscribe(self, rule: TopicRule, full_topic: str) -> None:
-        self._ros_subscribe(full_topic)
+        self._create_subscription(full_topic)
+        self._wanted.add(full_topic)
 
     def unsubscribe(self, full_topic: str) -> None:
-        # No client wants it: drop the ROS subscription too, so publishers see that nobody listens
-        # (the VAD reports an utterance nobody hears, a file source waits for an agent).
         if full_topic in self._always:
             return
         self._wanted.discard(full_topic)
-        subscription = self._subscriptions.pop(full_topic, None)
-        if subscription is not None:
-            self._node.destroy_subscription(subscription)
+        if self._rules[full_topic].topic_class == "audio":
+            # Nobody wants this audio: drop the ROS subscription too, so its publisher sees that
+            # nobody listens (the VAD reports an utterance nobody hears; a file source waits).
+            subscription = self._subscriptions.pop(full_topic, None)
+            if subscription is not None:
+                self._node.destroy_subscription(subscription)
 
-    def _ros_subscribe(self, full: str) -> None:
-        """Non-state topics are subscribed in ROS only while a client wants them."""
-        if full not in self._subscriptions:
-            rule = self._rules[full]
-            self._gaps[full] = SequenceGaps()
-            self._subscriptions[full] = self._node.create_subscription(
-                self._classes[rule.type],
-                full,
-                self._forwarder(full),
-                subscription_qos(rule, self._audio_history_depth),
-                event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched(full)),
-            )
-        self._wanted.add(full)
+    def _create_subscription(self, full: str) -> None:
+        if full in self._subscriptions:
+            return
+        rule = self._rules[full]
+        self._gaps[full] = SequenceGaps()
+        self._subscriptions[full] = self._node.create_subscription(
+            self._classes[rule.type],
+            full,
+            self._forwarder(full),
+            subscription_qos(rule, self._audio_history_depth),
+            event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched(full)),
+        )
 
     def advertise(self, rule: TopicRule, full_topic: str) -> None:
         pass  # publishers exist from startup

@@ -84,13 +84,13 @@ def test_client_subscribes_and_publishes_through_the_bridge(
     prompts = node.create_publisher(String, "prompt_text", _qos.RELIABLE)
     with bridge_node(ros_namespace, env={"BYC_BRIDGE_TOKEN": TOKEN}) as (port, bridge_lines):
         wait_for(
+            lambda: prompts.get_subscription_count() >= 1, timeout=20, what="bridge subscribes prompt_text"
+        )
+        wait_for(
             lambda: node.count_publishers(f"{ros_namespace}/response_text") >= 1,
             timeout=20,
             what="bridge publishes response_text",
         )
-        # Nobody asked for prompt_text yet: the bridge does not subscribe it in ROS (a publisher
-        # can tell that nobody listens).
-        assert prompts.get_subscription_count() == 0
         with running_process([sys.executable, PROBE, library, str(port), TOKEN]) as probe:
             probe_lines = Lines(probe)
             wait_for(lambda: probe_lines.find("^ready") or probe.poll() is not None, timeout=20, what="probe")
@@ -103,8 +103,6 @@ def test_client_subscribes_and_publishes_through_the_bridge(
             assert probe_lines.find(r'^RECV \{"data": "hello agent"\}'), "\n".join(probe_lines.lines)
             wait_for(lambda: responses, timeout=20, what="response_text reaches ROS")
             assert responses[0] == f"{library} says hi"
-        # The client left: its subscription is dropped in ROS too.
-        wait_for(lambda: prompts.get_subscription_count() == 0, timeout=20, what="prompt_text unsubscribed")
         assert not any(TOKEN in line for line in bridge_lines.lines), "the token must never be logged"
 
 
@@ -182,8 +180,10 @@ def test_state_of_a_publisher_that_left_is_not_replayed(ros_namespace: str, grap
         vad = node.create_publisher(Bool, "voice_activity", _qos.RELIABLE)
         prompts = node.create_publisher(String, "prompt_text", _qos.RELIABLE)
         wait_for(
-            lambda: vad.get_subscription_count() >= 1, timeout=20, what="bridge subscribes voice_activity"
-        )  # a state topic: subscribed from startup (prompt_text only once a client asks)
+            lambda: vad.get_subscription_count() >= 1 and prompts.get_subscription_count() >= 1,
+            timeout=20,
+            what="bridge subscribes voice_activity and prompt_text",
+        )
         early = Reader(port)
         try:
             early.send({"op": "subscribe", "topic": "voice_activity"})
@@ -224,9 +224,15 @@ def test_every_audio_message_is_delivered_or_reported_lost(ros_namespace: str, g
     primer = 2**32 - 1  # chunk_sequence of the messages that make the path live (utterance_id = index)
     voice = node.create_publisher(AudioDataUtterance, "prompt_voice", _qos.RELIABLE)
     with bridge_node(ros_namespace, params=("audio_history_depth:=1",)) as (port, _):
+        # Audio is subscribed in ROS only for a client: until one asks, the publisher sees nobody
+        # (the VAD reports such utterances as lost).
+        wait_for(
+            lambda: node.count_subscribers(f"{ros_namespace}/prompt_text") >= 1, timeout=20, what="bridge up"
+        )
+        assert voice.get_subscription_count() == 0
         reader = Reader(port)
         try:
-            reader.send({"op": "subscribe", "topic": "prompt_voice"})  # the bridge subscribes in ROS now
+            reader.send({"op": "subscribe", "topic": "prompt_voice"})
             wait_for(
                 lambda: voice.get_subscription_count() >= 1, timeout=20, what="bridge subscribes prompt_voice"
             )
@@ -269,3 +275,5 @@ def test_every_audio_message_is_delivered_or_reported_lost(ros_namespace: str, g
             )
         finally:
             reader.close()
+        # The client left: nobody listens to the audio any more, and the publisher can see it.
+        wait_for(lambda: voice.get_subscription_count() == 0, timeout=20, what="prompt_voice unsubscribed")
