@@ -8,6 +8,7 @@ import asyncio
 import base64
 import json
 import re
+import shutil
 import signal
 import subprocess
 import threading
@@ -325,6 +326,44 @@ def agent_process(
             print(f"--- {config.name}:", *list(output.lines), sep="\n")
 
 
+# The installed executables (`ros2 run by_your_command NAME`) and the shipped config each defaults to.
+GEMINI_EXECUTABLES = {
+    "agent_gemini.yaml": "gemini_live_agent",
+    "agent_gemini_command.yaml": "gemini_command_agent",
+}
+KEY_VARIABLES = ("OPENAI_API_KEY", "GOOGLE_API_KEY", "GEMINI_API_KEY")
+
+
+def installed_executable(name: str) -> str:
+    """An executable as colcon installed it (install/by_your_command/lib/by_your_command/, on PATH
+    through scripts/env.sh): what `ros2 run by_your_command NAME` starts."""
+    executable = shutil.which(name)
+    assert executable is not None, f"{name} is not on PATH: run scripts/bootstrap.sh"
+    return executable
+
+
+@contextmanager
+def installed_gemini_agent(
+    name: str, api: GeminiEmulatorThread, bridge_port: int, key_env: str = "GOOGLE_API_KEY"
+) -> Iterator[tuple[subprocess.Popen[str], Output]]:
+    """The installed executable `name` on its default config, pointed at the emulator with --set and
+    given ROS arguments (which it ignores), with the key in `key_env` only: the other key variables
+    are removed from its environment (not blanked)."""
+    unset = [arg for variable in KEY_VARIABLES if variable != key_env for arg in ("-u", variable)]
+    command = [
+        "env", *unset, installed_executable(name),
+        "--set", f"provider.base_url={api.base_url}", "--set", f"provider.ca_file={api.ca_file}",
+        "--pause-timeout", "60", "--ros-args", "-r", f"__node:={name}",
+    ]  # fmt: skip
+    env = {key_env: FAKE_KEY, "BYC_BRIDGE_URL": f"ws://127.0.0.1:{bridge_port}"}
+    with running_process(command, env=env) as process:
+        output = Output(process)
+        try:
+            yield process, output
+        finally:
+            print(f"--- {name}:", *list(output.lines), sep="\n")
+
+
 def setup_requests(settings: dict[str, Any]) -> int:
     """How many subscribe + advertise requests an agent with these settings sends at connect."""
 
@@ -537,10 +576,12 @@ def gemini_graph(
     wav: Path | None = None,
     processor: bool = False,
     forwarder: Sequence[str] | None = None,
+    installed: bool = False,
 ) -> Iterator[AgentGraph]:
     """The probe, the nodes asked for (player with a WAV sink, command processor, frame forwarder
     with `forwarder` parameters), the bridge, and one `byc agent` per (emulator, shipped config,
-    settings), each subscribed at the bridge."""
+    settings), each subscribed at the bridge. `installed`: each agent is instead the installed
+    executable of its shipped config (GEMINI_EXECUTABLES, `installed_gemini_agent`; no settings)."""
     with ExitStack() as stack:
         probe = stack.enter_context(graph_probe(namespace))
         nodes: list[subprocess.Popen[str]] = []
@@ -554,8 +595,15 @@ def gemini_graph(
         port, _ = stack.enter_context(bridge_process(namespace))
         running = []
         for api, shipped, settings in agents:
-            config, data = gemini_agent_config(tmp_path, api, shipped, **settings)
-            process, output = stack.enter_context(agent_process(config, port))
+            if installed:
+                assert not settings, "an installed agent runs its shipped config (pointed at the emulator)"
+                data = yaml.safe_load((CONFIG_DIR / shipped).read_text())
+                process, output = stack.enter_context(
+                    installed_gemini_agent(GEMINI_EXECUTABLES[shipped], api, port)
+                )
+            else:
+                config, data = gemini_agent_config(tmp_path, api, shipped, **settings)
+                process, output = stack.enter_context(agent_process(config, port))
             running.append(RunningAgent(process, output, data))
         check = alive(*(agent.process for agent in running), *nodes)
         probe.wait_agents_ready(namespace, [setup_requests(agent.settings) for agent in running], 60.0)

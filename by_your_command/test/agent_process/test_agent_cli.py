@@ -215,7 +215,7 @@ def test_the_shipped_configs_are_valid(
     ("name", "role", "prompt", "context", "detections"),
     [
         ("agent_gemini.yaml", "conversation", "conversational_assistant", "own", False),
-        ("agent_gemini_command.yaml", "command", "command_extractor", "shared", True),
+        ("agent_gemini_command.yaml", "command", "gemini_command_extractor", "shared", True),
         ("agent_gemini_tool.yaml", "tools", "combined_tool_agent", "own", False),
     ],
 )

@@ -14,6 +14,7 @@ from by_your_command.prompts.located_yaml import ConfigError
 SHIPPED_PROMPTS = [
     "conversational_assistant",
     "command_extractor",
+    "gemini_command_extractor",
     "combined_tool_agent",
     "visual_description",
 ]
