@@ -3,10 +3,13 @@
 Corpus, synthesized now with espeak-ng in voices the recognizer was NOT tuned on (tuning used
 en-us and en-gb): every command, phrase and question of the vocabulary in up to two spoken forms
 (each form said by two of the held-out voices), and CHAT lines (small talk, questions, sentences
-holding command words), each clean and with white noise at --snr dB. Both searches decode the same
-audio through OfflineRecognizer: the filler-word garbage model (what ships) and a bare JSGF grammar
-(baseline). Figures as JSON lines, then a table and the misses.
+holding command words, command words in other sentences), each clean and with white noise at --snr
+dB. Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine with
+pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback without the
+Moonshine model) and a bare JSGF grammar (baseline). Figures as JSON lines (decode speed as the
+median real-time factor per utterance and its ratio to the baseline's), then a table and the misses.
 usage: scripts/run.sh python bench/bench_offline_recognition.py [--forms 2] [--snr 15] [--voices ...]
+       [--searches moonshine verified bare_grammar]
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import collections
 import dataclasses
 import json
 import random
+import statistics
 import subprocess
 import time
 from typing import Any
@@ -23,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from by_your_command.audio.pcm import Int16Array, resample
-from by_your_command.offline.recognizer import OfflineRecognizer, RecognizerConfig, Search
+from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, RecognizerConfig, Search
 from by_your_command.offline.spoken import RecognitionKind, SpokenForm
 
 RATE = 16000
@@ -44,7 +48,21 @@ CHAT = (
     "sorry I was not listening", "could you repeat that", "the stock market went up today",
     "move over, let me sit down", "I'm going to the shop", "bumper cars are fun", "right, okay then",
     "the meeting starts at nine", "how do you spell that", "I forgot my umbrella",
+    # Command words in everyday sentences: a recognizer that spots words instead of whole forms
+    # turns these into commands.
+    "look over there", "looking good", "turn up the heat", "pan out the camera", "move along",
+    "follow up tomorrow", "track my order", "wake up call", "sleep well", "stop by later", "I'm freezing",
+    "help me with my homework", "who is that", "what time does it open", "right behind you",
+    "the left lane is slow", "back to work", "lookout point", "bumper sticker", "reach out to me",
+    "look at the time", "I'll look into it", "can you look up a recipe", "the pan is still hot",
+    "turn it off and on again", "we moved here last year", "track and field is my sport", "follow the money",
+    "what's up", "look who's here", "hold on a second", "I left it on the table", "back in a minute",
+    "the lookout tower is closed", "the ball is red", "stop and think about it", "wake me up at seven",
+    "go to sleep little baby", "pan fried noodles", "turn right at the lights", "move the chair forward",
+    "he reached the top", "attention to detail matters", "help yourself to cake", "freeze the leftovers",
+    "halt and catch fire is a show", "ten hot dogs please",
 )  # fmt: skip
+BASELINE = Search.BARE_GRAMMAR
 COMMAND_KINDS = (RecognitionKind.COMMAND, RecognitionKind.PHRASE)
 
 
@@ -110,38 +128,48 @@ class Tally:
     chat_as_question: int = 0
     audio_s: float = 0.0
     decode_s: float = 0.0
+    rtf: list[float] = dataclasses.field(default_factory=list)  # per utterance
     misses: list[str] = dataclasses.field(default_factory=list)
     per_voice: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
     per_voice_total: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
 
 
 def measure(
-    recognizer: OfflineRecognizer, audio: list[tuple[Utterance, str, Int16Array]]
-) -> dict[str, Tally]:
-    tallies: dict[str, Tally] = collections.defaultdict(Tally)
+    recognizers: dict[Search, OfflineRecognizer], audio: list[tuple[Utterance, str, Int16Array]]
+) -> dict[Search, dict[str, Tally]]:
+    """Every search decodes each utterance in turn, so machine load falls on all of them alike."""
+    tallies: dict[Search, dict[str, Tally]] = {
+        search: collections.defaultdict(Tally) for search in recognizers
+    }
     for utterance, condition, pcm in audio:
-        start = time.perf_counter()
-        result = recognizer.recognize(pcm.tobytes(), RATE)
-        elapsed = time.perf_counter() - start
-        for tally in (tallies[condition], tallies["all"]):
-            tally.audio_s += len(pcm) / RATE
-            tally.decode_s += elapsed
-            expected = utterance.expected
-            if expected is None:
-                tally.chat += 1
-                tally.chat_as_command += result.kind in COMMAND_KINDS
-                tally.chat_as_question += result.kind is RecognitionKind.QUESTION
-                if result.kind is not RecognitionKind.REJECTED:
-                    tally.misses.append(f"chat {utterance.text!r} ({utterance.voice}) -> {result.canonical}")
-                continue
-            tally.commands += 1
-            hit = (result.kind, result.canonical) == (expected.kind, expected.canonical)
-            tally.exact += hit
-            tally.per_voice_total[utterance.voice] += 1
-            tally.per_voice[utterance.voice] += hit
-            if not hit:
-                tally.misses.append(f"{utterance.text!r} ({utterance.voice}) -> {result.text!r}")
+        for search, recognizer in recognizers.items():
+            start = time.perf_counter()
+            result = recognizer.recognize(pcm.tobytes(), RATE)
+            elapsed = time.perf_counter() - start
+            for tally in (tallies[search][condition], tallies[search]["all"]):
+                count(tally, utterance, result, len(pcm) / RATE, elapsed)
     return tallies
+
+
+def count(tally: Tally, utterance: Utterance, result: Recognition, seconds: float, elapsed: float) -> None:
+    tally.audio_s += seconds
+    tally.decode_s += elapsed
+    tally.rtf.append(elapsed / seconds)
+    expected = utterance.expected
+    if expected is None:
+        tally.chat += 1
+        tally.chat_as_command += result.kind in COMMAND_KINDS
+        tally.chat_as_question += result.kind is RecognitionKind.QUESTION
+        if result.kind is not RecognitionKind.REJECTED:
+            tally.misses.append(f"chat {utterance.text!r} ({utterance.voice}) -> {result.canonical}")
+        return
+    tally.commands += 1
+    hit = (result.kind, result.canonical) == (expected.kind, expected.canonical)
+    tally.exact += hit
+    tally.per_voice_total[utterance.voice] += 1
+    tally.per_voice[utterance.voice] += hit
+    if not hit:
+        tally.misses.append(f"{utterance.text!r} ({utterance.voice}) -> {result.text!r}")
 
 
 def main() -> None:
@@ -152,10 +180,24 @@ def main() -> None:
     parser.add_argument("--snr", type=float, default=15.0, help="noise condition, dB SNR (default 15)")
     parser.add_argument("--voices", nargs="+", default=list(HELD_OUT_VOICES))
     parser.add_argument("--misses", type=int, default=15, help="misses listed per search")
+    parser.add_argument(
+        "--searches",
+        nargs="+",
+        type=Search,
+        default=[Search.MOONSHINE, Search.VERIFIED, BASELINE],
+        help="searches to compare (the baseline is always added)",
+    )
     args = parser.parse_args()
 
-    searches = {search: OfflineRecognizer(RecognizerConfig(search=search)) for search in Search}
-    utterances = corpus(searches[Search.FILLER_LM].forms, tuple(args.voices), args.forms)
+    searches: dict[Search, OfflineRecognizer] = {}
+    for search in dict.fromkeys([*args.searches, BASELINE]):
+        start = time.perf_counter()
+        recognizer = OfflineRecognizer(RecognizerConfig(search=search))
+        if recognizer.search is not search:
+            raise SystemExit(f"{search.value} is not available here (it would run {recognizer.search.value})")
+        emit("load", time.perf_counter() - start, "s", search=search.value)
+        searches[search] = recognizer
+    utterances = corpus(searches[BASELINE].forms, tuple(args.voices), args.forms)
     start = time.perf_counter()
     audio: list[tuple[Utterance, str, Int16Array]] = []
     for index, utterance in enumerate(utterances):
@@ -168,7 +210,7 @@ def main() -> None:
     emit("corpus", len(audio), "utterances", commands=2 * commands, chat=2 * (len(utterances) - commands),
          voices=args.voices, synth_s=round(time.perf_counter() - start, 1))  # fmt: skip
 
-    results = {search: measure(recognizer, audio) for search, recognizer in searches.items()}
+    results = measure(searches, audio)
     rows = []
     for search, tallies in results.items():
         for condition, tally in tallies.items():
@@ -179,16 +221,20 @@ def main() -> None:
             emit("chat_as_command", tally.chat_as_command, "lines", n=tally.chat, **extra)
             emit("chat_as_question", tally.chat_as_question, "lines", n=tally.chat, **extra)
             emit("decode_speed", rtf, "x real time", **extra)
+            median = statistics.median(tally.rtf)
+            baseline = statistics.median(results[BASELINE][condition].rtf)
+            emit("decode_speed_median", median, "x real time", ratio_to_baseline=round(median / baseline, 2),
+                 **extra)  # fmt: skip
             rows.append((search.value, condition, accuracy, tally.chat_as_command, tally.chat_as_question,
-                         tally.chat, rtf))  # fmt: skip
+                         tally.chat, median))  # fmt: skip
         for voice, total in sorted(tallies["all"].per_voice_total.items()):
             emit("exact_commands_by_voice", 100.0 * tallies["all"].per_voice[voice] / total, "%",
                  search=search.value, voice=voice, n=total)  # fmt: skip
 
-    print(f"\n{'search':<14}{'condition':<10}{'exact cmds':>11}{'chat->cmd':>11}{'chat->q':>9}{'RTF':>8}")
+    print(f"\n{'search':<14}{'condition':<10}{'exact cmds':>11}{'chat->cmd':>11}{'chat->q':>9}{'RTF med':>9}")
     for search_name, condition, accuracy, as_command, as_question, chat, rtf in rows:
         print(f"{search_name:<14}{condition:<10}{accuracy:>10.1f}%{as_command:>6}/{chat:<4}"
-              f"{as_question:>5}/{chat:<3}{rtf:>8.3f}")  # fmt: skip
+              f"{as_question:>5}/{chat:<3}{rtf:>9.3f}")  # fmt: skip
     for search, tallies in results.items():
         misses = tallies["all"].misses
         print(f"\n{search.value}: {len(misses)} misses" + (f", first {args.misses}:" if misses else ""))

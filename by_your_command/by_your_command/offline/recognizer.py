@@ -1,6 +1,12 @@
 """Offline recognition of one whole utterance: a command, a wake/sleep/stop phrase, a question, or
 nothing (rejected).
 
+The default search (`Search.MOONSHINE`) asks the Moonshine speech model (moonshine.py; its model
+ships in the moonshine-cpp wheel) how well each spoken form explains the utterance, and accepts
+its best form when a free transcription would have written almost exactly that form; otherwise it
+accepts the pocketsphinx grammar's form only if Moonshine finds that form nearly as likely as its
+own best. Without the model it falls back to pocketsphinx alone (`Search.VERIFIED`, below).
+
 pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
 the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
 but forces every utterance into its nearest form, and a filler model where the forms compete with a
@@ -16,6 +22,7 @@ the decode time by max_utterance_s.
 from __future__ import annotations
 
 import enum
+import logging
 import os
 import tempfile
 import threading
@@ -28,6 +35,12 @@ from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
 from by_your_command.offline.filler_words import FILLER_WORDS
 from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
+from by_your_command.offline.moonshine import (
+    FormScore,
+    ModelUnavailableError,
+    MoonshineConfig,
+    MoonshineScorer,
+)
 from by_your_command.offline.spoken import (
     RecognitionKind,
     SpokenForm,
@@ -36,7 +49,9 @@ from by_your_command.offline.spoken import (
     pronounceable,
 )
 
-DECODER_RATE = 16000  # the en-us acoustic model's rate
+log = logging.getLogger(__name__)
+
+DECODER_RATE = 16000  # the en-us acoustic model's rate (and Moonshine's)
 MIN_INPUT_RATE, MAX_INPUT_RATE = 8000, 48000
 GRAMMAR_SEARCH, FILLER_SEARCH = "grammar", "filler"
 
@@ -51,9 +66,13 @@ class Rejection(str, enum.Enum):
     SILENCE = "silence"
     NOT_IN_GRAMMAR = "not a command, phrase or question"
     UNCONFIRMED = "the filler model heard something else"
+    NOT_A_FORM = "the speech model heard something else"
 
 
 class Search(str, enum.Enum):
+    # Moonshine picks the form (the grammar's form when Moonshine nearly agrees); falls back to
+    # VERIFIED when the model is not installed.
+    MOONSHINE = "moonshine"
     # The grammar proposes, the filler model must agree (same meaning): never acts on chat.
     VERIFIED = "verified"
     FILLER_LM = "filler_lm"  # forms + garbage loop of filler words only (rejects most chat)
@@ -64,7 +83,14 @@ class Search(str, enum.Enum):
 class RecognizerConfig:
     commands_file: str = ""  # empty: the installed config/commands.yaml
     spoken: SpokenVocabularyConfig = field(default_factory=SpokenVocabularyConfig)
-    search: Search = Search.VERIFIED
+    search: Search = Search.MOONSHINE
+    moonshine: MoonshineConfig = field(default_factory=MoonshineConfig)
+    # Regret (moonshine.py): how far, in log probability summed over tokens, a form is from what
+    # Moonshine would have written freely. Moonshine's own best form is accepted up to
+    # accept_regret; otherwise the pocketsphinx-verified form (grammar and filler model agree) up to
+    # confirm_regret. Tuned on en-us/en-gb voices (docs/offline.md).
+    accept_regret: float = 2.0
+    confirm_regret: float = 12.0
     garbage: GarbageWeights = field(default_factory=GarbageWeights)
     language_weight: float = 6.5  # pocketsphinx `lw`: how much the model counts against the acoustics
     filler_words: tuple[str, ...] = FILLER_WORDS
@@ -82,6 +108,8 @@ class RecognizerConfig:
             raise ValueError("need 0 < min_utterance_s < max_utterance_s")
         if self.language_weight <= 0:
             raise ValueError("language_weight must be positive")
+        if not 0.0 <= self.accept_regret <= self.confirm_regret:
+            raise ValueError("need 0 <= accept_regret <= confirm_regret")
         if self.dither_rms < 0 or self.noise_tail_rms < 0 or self.noise_tail_s < 0:
             raise ValueError("dither and noise tail must not be negative")
 
@@ -126,13 +154,21 @@ class OfflineRecognizer:
         missing = [word for word in self.config.filler_words if known(word) is None]
         if missing:
             raise ValueError(f"filler words not in the pronunciation dictionary: {missing}")
+        self.search = self.config.search  # what runs: MOONSHINE falls back to VERIFIED without it
+        self._scorer: MoonshineScorer | None = None
+        if self.search is Search.MOONSHINE:
+            try:
+                self._scorer = MoonshineScorer([form.words for form in self.forms], self.config.moonshine)
+            except ModelUnavailableError as error:
+                log.warning("offline recognition without the Moonshine model (%s): pocketsphinx only", error)
+                self.search = Search.VERIFIED
         self._load_searches()
 
     def _load_searches(self) -> None:
         words = list(self._by_words)
-        if self.config.search is not Search.FILLER_LM:
+        if self.search is not Search.FILLER_LM:
             self._decoder.add_jsgf_string(GRAMMAR_SEARCH, jsgf_grammar(words))
-        if self.config.search is Search.BARE_GRAMMAR:
+        if self.search is Search.BARE_GRAMMAR:
             return
         model = arpa_model(words, self.config.filler_words, self.config.garbage)
         handle, path = tempfile.mkstemp(suffix=".arpa", prefix="byc-offline-")
@@ -165,13 +201,16 @@ class OfflineRecognizer:
         samples: Int16Array = np.frombuffer(pcm, dtype="<i2").astype(np.int16)
         if _rms_dbfs(samples) < config.silence_dbfs:
             return _rejected(Rejection.SILENCE)
-        audio = self._prepared(resample(samples, sample_rate, DECODER_RATE))
-        first = FILLER_SEARCH if config.search is Search.FILLER_LM else GRAMMAR_SEARCH
+        samples = resample(samples, sample_rate, DECODER_RATE)
+        if self._scorer is not None:
+            return self._moonshine(samples)
+        audio = self._prepared(samples)
+        first = FILLER_SEARCH if self.search is Search.FILLER_LM else GRAMMAR_SEARCH
         hypothesis, confidence = self._decode(audio, first)
         form = self._by_words.get(hypothesis)
         if form is None:
             return _rejected(Rejection.NOT_IN_GRAMMAR, hypothesis)
-        if config.search is Search.VERIFIED:
+        if self.search is Search.VERIFIED:
             # The grammar always finds its nearest form; only when the filler model, free to
             # hear any words, hears the same meaning is it a command.
             check, confidence = self._decode(audio, FILLER_SEARCH)
@@ -179,6 +218,37 @@ class OfflineRecognizer:
             if confirmed is None or confirmed.canonical != form.canonical:
                 return _rejected(Rejection.UNCONFIRMED, f"{hypothesis} / {check}")
         return Recognition(form.kind, form.words, form.canonical, confidence)
+
+    def _moonshine(self, samples: Int16Array) -> Recognition:
+        """Moonshine's best form if it is nearly what Moonshine would write freely; else the
+        pocketsphinx-verified form (grammar and filler model agree) if Moonshine does not find it
+        far off. Confidence exp(-regret). pocketsphinx runs only when Moonshine alone is unsure."""
+        config = self.config
+        assert self._scorer is not None
+        with self._lock:
+            scores = self._scorer.score(samples.astype(np.float32) / 32768.0)
+            self.stats.decoded += 1
+        if not scores:
+            return _rejected(Rejection.NOT_A_FORM)
+        best = scores[0]
+        heard = self.forms[best.index].words
+        chosen: FormScore | None = best if best.regret <= config.accept_regret else None
+        grammar = "-"
+        if chosen is None:
+            audio = self._prepared(samples)
+            grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
+            form = self._by_words.get(grammar)
+            if form is not None:
+                check, _ = self._decode(audio, FILLER_SEARCH)
+                confirmed = self._by_words.get(check)
+                if confirmed is not None and confirmed.canonical == form.canonical:
+                    same = [s for s in scores if self.forms[s.index].canonical == form.canonical]
+                    if same and min(s.regret for s in same) <= config.confirm_regret:
+                        chosen = min(same, key=lambda s: s.regret)
+        if chosen is None:
+            return _rejected(Rejection.NOT_A_FORM, f"{grammar or '-'} / {heard}")
+        form = self.forms[chosen.index]
+        return Recognition(form.kind, form.words, form.canonical, float(np.exp(-chosen.regret)))
 
     def _prepared(self, samples: Int16Array) -> bytes:
         config = self.config

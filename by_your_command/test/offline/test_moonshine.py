@@ -1,0 +1,93 @@
+"""MoonshineScorer and its tokenizer on the model shipped in the moonshine-cpp wheel."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from by_your_command.offline.moonshine import (
+    FormScore,
+    ModelUnavailableError,
+    MoonshineConfig,
+    MoonshineScorer,
+    default_model_dir,
+)
+from by_your_command.offline.tokenizer import FIRST_BYTE, SPACE, Tokenizer
+
+Synthesize = Callable[[str, str], bytes]
+FORMS = ["move back", "move forward", "reach", "reach left", "look up", "lookup"]
+
+
+@pytest.fixture(scope="module")
+def scorer() -> MoonshineScorer:
+    return MoonshineScorer(FORMS)
+
+
+def _score(scorer: MoonshineScorer, pcm: bytes) -> list[FormScore]:
+    return scorer.score(np.frombuffer(pcm, dtype="<i2").astype(np.float32) / 32768.0)
+
+
+@pytest.mark.unit
+def test_the_model_tokenizer_writes_forms_as_the_model_does() -> None:
+    tokenizer = Tokenizer.from_file(default_model_dir() / "tokenizer.bin")
+    ids = tokenizer.encode("Look up to the left")
+    assert len(ids) == 5  # one token per word, as Moonshine itself writes this sentence
+    assert tokenizer.decode(ids) == "Look up to the left"
+    assert tokenizer.decode(tokenizer.encode("Ten hut, snowman \u2603?")) == "Ten hut, snowman \u2603?"
+
+
+def _toy(pieces: list[str]) -> Tokenizer:
+    return Tokenizer(
+        [b"<unk>", b"<s>", b"</s>", *(bytes([i]) for i in range(256)), *(p.encode() for p in pieces)]
+    )
+
+
+@pytest.mark.unit
+def test_bpe_merges_the_lowest_id_pair_first_and_falls_back_to_bytes() -> None:
+    first = 259  # ids of the pieces below: 259, 260, 261
+    tokenizer = _toy(["bc", f"{SPACE}a", f"{SPACE}ab"])
+    # "bc" (259) merges before "▁a" (260); left-to-right would have made "▁ab" + "c".
+    assert tokenizer.encode("abc") == [first + 1, first]
+    assert tokenizer.encode("z") == [FIRST_BYTE + byte for byte in f"{SPACE}z".encode()]
+    assert tokenizer.decode(tokenizer.encode("a z")) == "a z"
+
+
+@pytest.mark.unit
+def test_a_broken_tokenizer_file_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "tokenizer.bin"
+    path.write_bytes(b"\x05<unk>\x03<s>\x09</s")  # the last entry promises more bytes than follow
+    with pytest.raises(ValueError, match="truncated"):
+        Tokenizer.from_file(path)
+    path.write_bytes(b"\x01a" * 10)
+    with pytest.raises(ValueError, match="more than"):
+        Tokenizer.from_file(path)
+
+
+@pytest.mark.unit
+def test_the_form_spoken_scores_best_with_no_regret(scorer: MoonshineScorer, synthesize: Synthesize) -> None:
+    scores = _score(scorer, synthesize("move back", "en-029"))
+    assert FORMS[scores[0].index] == "move back"
+    assert scores[0].regret < 1.0 and scores[0].logprob < 0.0
+    assert [s.logprob for s in scores] == sorted((s.logprob for s in scores), reverse=True)
+
+
+@pytest.mark.unit
+def test_a_sentence_that_only_starts_like_a_form_pays_where_it_goes_on(
+    scorer: MoonshineScorer, synthesize: Synthesize
+) -> None:
+    scores = _score(scorer, synthesize("reach for the stars", "en-029"))
+    assert FORMS[scores[0].index] == "reach"
+    assert scores[0].regret > 4.0
+
+
+@pytest.mark.unit
+def test_a_missing_model_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(ModelUnavailableError, match="lacks"):
+        MoonshineScorer(FORMS, MoonshineConfig(model_dir=str(tmp_path)))
+    for name in ("encoder_model.ort", "decoder_model_merged.ort", "tokenizer.bin"):
+        (tmp_path / name).write_bytes(b"not a model")
+    with pytest.raises(ModelUnavailableError, match="cannot load"):
+        MoonshineScorer(FORMS, MoonshineConfig(model_dir=str(tmp_path)))
