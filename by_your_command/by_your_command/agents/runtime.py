@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import secrets
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
@@ -155,6 +156,9 @@ class AgentRuntime:
         self._shown: CameraFrame | None = None  # the last frame sent to the model (detections' pixels)
         self._shown_info: FrameInfo | None = None
         self._streams = 0
+        # Stream ids name this run too: a restarted agent's first reply must not continue (or be
+        # dropped as) the stream its dead predecessor left in the player under the same id.
+        self._run = secrets.token_hex(3)
         self._last_activity = 0.0  # last exchange with the provider or the player (pause timer)
         self._awaited_at = 0.0  # last sign of life of the reply due (reply deadline)
         self._committed_at = 0.0  # when the latest turn was committed (orders late user transcripts)
@@ -1124,7 +1128,7 @@ class AgentRuntime:
 
     def _new_stream_id(self) -> str:
         self._streams += 1
-        return f"{self.config.agent_id}-{self._serial}-{self._streams}"
+        return f"{self.config.agent_id}-{self._run}-{self._serial}-{self._streams}"
 
     async def _publish_voice(self, reply: ReplyAudio, pcm: bytes) -> None:
         if reply.stream_started_at is None:
