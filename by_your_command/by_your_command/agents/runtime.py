@@ -394,10 +394,6 @@ class AgentRuntime:
             turn.held = True
             self._barge_turn = turn
         self._turn_in = turn
-        # A frame forwarded at the question's onset goes with it; one left over from while the
-        # previous question was spoken does not (the model would describe the past).
-        if self._send_frame(session, since=self._utterance_ended_at):
-            self._asked_turn = turn.number
         await self._continue_utterance(turn, chunk)
 
     async def _continue_utterance(self, turn: Turn, chunk: UtteranceChunk) -> None:
@@ -413,6 +409,7 @@ class AgentRuntime:
                 chunk.utterance_id,
                 missing,
             )
+        first = turn.next_sequence == 0
         turn.next_sequence = chunk.chunk_sequence + 1
         turn.last_chunk_at = self._clock.now()
         assert turn.resampler is not None
@@ -420,6 +417,12 @@ class AgentRuntime:
             self.counters.inputs_invalid += 1
             return
         self._append_audio(turn, turn.resample(chunk.pcm, chunk.sample_rate, chunk.is_end))
+        if first and self._session is not None:
+            # After the question's first audio (Gemini opens the user's activity with it), so the
+            # frame is part of the question. A frame forwarded at its onset goes with it; one left
+            # over from while the previous question was spoken does not (it shows the past).
+            if self._send_frame(self._session, since=self._utterance_ended_at):
+                self._asked_turn = turn.number
         if chunk.is_end:
             await self._end_utterance(turn)
         elif self._barge is not None and self._barge_turn is turn:

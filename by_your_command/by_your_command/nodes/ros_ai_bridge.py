@@ -226,6 +226,10 @@ class _NodeGraph:
             event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched(full)),
         )
 
+    def listeners(self) -> dict[str, int]:
+        """Matched subscribers of each publisher (clients → ROS topics), by full topic name."""
+        return {full: publisher.get_subscription_count() for full, publisher in self._publishers.items()}
+
     def advertise(self, rule: TopicRule, full_topic: str) -> None:
         pass  # publishers exist from startup
 
@@ -383,6 +387,9 @@ class RosAiBridge(Node):
         }
         for topic, count in sorted(self.core.lost_upstream.items()):
             values[f"lost_upstream.{topic}"] = count
+        # Who listens to what clients publish: 0 means a reply or command would go nowhere.
+        for topic, listeners in sorted(self._graph.listeners().items()):
+            values[f"listeners.{topic}"] = listeners
         for client in stats:
             prefix = f"client{client.id}"
             values.update(

@@ -23,6 +23,7 @@ import yaml
 from by_your_command_msgs.msg import AudioDataUtterance, CommandVerdict, Interruption, PlaybackStatus
 from byc_testing import REPO_ROOT, python_module, running_process, wait_for
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from ros_probe import Probe, probe_node
 from std_msgs.msg import Bool, String
 
@@ -37,6 +38,7 @@ from by_your_command.emulators.openai_script import Script
 from by_your_command.nodes._qos import LATCHED, RELIABLE
 
 T = TypeVar("T")
+DEEP = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=2000, reliability=QoSReliabilityPolicy.RELIABLE)
 
 # Recognisable, so a test can prove it never reaches any log line.
 FAKE_KEY = "sk-test-Rec0gnisableFakeKey-7f3a9c1e5b"
@@ -394,6 +396,7 @@ class GraphProbe:
         self.probe = probe
         node = probe.node
         self._subscriptions: list[Any] = []
+        self.listeners_needed: dict[str, int] = {}  # full topic → matched subscribers at the bridge
         self.voice = node.create_publisher(AudioDataUtterance, "prompt_voice", RELIABLE)
         self.text = node.create_publisher(String, "prompt_text", RELIABLE)
         self.activity = node.create_publisher(Bool, "voice_activity", RELIABLE)
@@ -402,7 +405,9 @@ class GraphProbe:
         self.commands: list[String] = self._listen(String, "response_cmd")
         self.verdicts: list[CommandVerdict] = self._listen(CommandVerdict, "command_status")
         self.interruptions: list[Interruption] = self._listen(Interruption, "interruption_signal")
-        self.playback: list[PlaybackStatus] = self._listen(PlaybackStatus, "playback_status")
+        # Deep: the player reports every block, and a test thread busy on a loaded machine can leave
+        # this reader untaken for seconds; a 100-deep history then loses the one `finished` status.
+        self.playback: list[PlaybackStatus] = self._listen(PlaybackStatus, "playback_status", DEEP)
         self.metrics: list[String] = self._listen(String, "agent_metrics")
         self.arm: list[String] = self._listen(String, "arm_preset")
         self.speaking: list[Bool] = self._listen(Bool, "assistant_speaking", LATCHED)
@@ -467,6 +472,11 @@ class GraphProbe:
         yet matched)."""
         node = self.probe.node
         topic = self.probe.topic
+        # wait_agents_ready then also waits until the bridge's publishers have matched these nodes
+        if player:
+            self.listeners_needed[topic("response_voice")] = 1
+        if processor:
+            self.listeners_needed[topic("response_cmd")] = 2  # the processor and this probe
 
         def up() -> bool:
             check()
@@ -505,6 +515,14 @@ class GraphProbe:
             return all(have >= need for have, need in zip(seen, sorted(requests), strict=True))
 
         wait_for(ready, timeout=timeout, what=f"{len(requests)} agent(s) subscribed at the bridge")
+
+        def matched() -> bool:
+            values = self.bridge_values(namespace) or {}
+            return all(int(values.get(f"listeners.{t}", 0)) >= n for t, n in self.listeners_needed.items())
+
+        # The bridge's publishers see the player and processor (a first reply or command is not
+        # lost to DDS discovery, which can take seconds on a loaded machine).
+        wait_for(matched, timeout=timeout, what=f"the bridge's publishers matched {self.listeners_needed}")
         wait_for(self.connected_to_bridge, timeout=timeout, what="the probe matched with the bridge")
         assert self.bridge_values(namespace) is not None
         assert all(

@@ -114,7 +114,10 @@ def test_camera_frame_goes_with_the_next_turn_and_never_opens_a_session() -> Non
             await asyncio.sleep(1.0)
             await agent.stop()
         names = factory.last.names()
-        assert names.count("image") == 1 and names.index("image") < names.index("audio")
+        # inside the question: after its first audio (Gemini's activity is open), before its end
+        assert names.count("image") == 1 and names.index("audio") < names.index("image") < names.index(
+            "end_of_turn"
+        )
 
     run_virtual(scenario())
 
