@@ -226,6 +226,10 @@ class _NodeGraph:
             event_callbacks=SubscriptionEventCallbacks(matched=self._on_matched(full)),
         )
 
+    def sources(self) -> dict[str, int]:
+        """Matched publishers of each ROS subscription (ROS topics → clients), by full topic name."""
+        return {full: sub.get_publisher_count() for full, sub in list(self._subscriptions.items())}
+
     def listeners(self) -> dict[str, int]:
         """Matched subscribers of each publisher (clients → ROS topics), by full topic name."""
         return {full: publisher.get_subscription_count() for full, publisher in self._publishers.items()}
@@ -390,6 +394,8 @@ class RosAiBridge(Node):
         # Who listens to what clients publish: 0 means a reply or command would go nowhere.
         for topic, listeners in sorted(self._graph.listeners().items()):
             values[f"listeners.{topic}"] = listeners
+        for topic, sources in sorted(self._graph.sources().items()):
+            values[f"sources.{topic}"] = sources
         for client in stats:
             prefix = f"client{client.id}"
             values.update(

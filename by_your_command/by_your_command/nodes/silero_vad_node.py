@@ -212,7 +212,9 @@ class SileroVadNode(Node):
                     self.activity_pub.publish(Bool(data=event.active))
                     self.utterances += int(event.active)
                 elif isinstance(event, UtteranceChunk):
-                    if event.chunk_sequence == 0 and self.voice_pub.get_subscription_count() == 0:
+                    # Judged at the end: DDS's subscriber count lags a new match by a moment (a
+                    # chunk lost before it is the agent's to report, as a missing chunk).
+                    if event.is_utterance_end and self.voice_pub.get_subscription_count() == 0:
                         self._unheard(event)
                     self.voice_pub.publish(self._utterance_msg(event))
             except Exception as error:  # rclpy raises RCLError under overload: count, never crash

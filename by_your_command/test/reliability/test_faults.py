@@ -141,6 +141,14 @@ def test_a_killed_bridge_the_utterance_in_the_outage_is_reported_by_the_vad_and_
         with bridge(ros_namespace, old.port) as new:
             check = alive(agent, mic.process, new.process)
             probe.wait_agents_ready(ros_namespace, [setup_requests(settings)], WAIT_S)
+            # The agent's subscription makes the new bridge subscribe prompt_voice; the VAD (like
+            # this probe) sees it only once DDS has matched them: speak after that.
+            voice_topic = f"sources.{probe.probe.topic('prompt_voice')}"
+
+            def vad_matched() -> bool:  # the bridge's subscription sees both publishers: VAD and probe
+                return int((probe.bridge_values(ros_namespace) or {}).get(voice_topic, 0)) >= 2
+
+            until(vad_matched, "the new bridge's prompt_voice matched the VAD", check, WAIT_S)
             mic.speak(speech)
             until(lambda: outcomes(probe) == ["completed"] * 2, "the turn after the restart", check, WAIT_S)
             assert replies(probe) == ["Before.", "After."]
