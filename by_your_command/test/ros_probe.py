@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -43,3 +44,16 @@ def probe_node(namespace: str, name: str = "probe") -> Iterator[Probe]:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+@contextmanager
+def spinning_node(namespace: str, name: str = "probe") -> Iterator[Node]:
+    """A probe node spun on a background thread, for tests that only publish and listen."""
+    with probe_node(namespace, name) as probe:
+        thread = threading.Thread(target=probe.executor.spin, daemon=True)
+        thread.start()
+        try:
+            yield probe.node
+        finally:
+            probe.executor.shutdown()
+            thread.join(timeout=5)

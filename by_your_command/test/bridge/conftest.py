@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from ros_probe import spinning_node
 
 _HERE = str(Path(__file__).resolve().parent)
 if _HERE not in sys.path:
@@ -20,17 +18,5 @@ if _HERE not in sys.path:
 @pytest.fixture
 def graph_node(ros_namespace: str) -> Iterator[Node]:
     """A node in its own context, spun in a background thread, for tests to publish and listen."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = Node("bridge_test", namespace=ros_namespace, context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    try:
+    with spinning_node(ros_namespace, "bridge_test") as node:
         yield node
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        thread.join(timeout=5)

@@ -10,13 +10,10 @@ from __future__ import annotations
 import json
 import os
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 _HERE = Path(__file__).resolve().parent
@@ -25,25 +22,14 @@ for _path in (_HERE, _HERE.parent / "bridge"):  # bridge_fakes: the fake ROS por
         sys.path.insert(0, str(_path))
 
 from fuzzing import LONG, TALLY  # noqa: E402 - needs the path above
+from ros_probe import spinning_node  # noqa: E402
 
 
 @pytest.fixture
 def graph_node(ros_namespace: str) -> Iterator[Node]:
     """A node in its own context, spun in a background thread, for tests to publish and listen."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = Node("fuzz_probe", namespace=ros_namespace, context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    try:
+    with spinning_node(ros_namespace, "fuzz_probe") as node:
         yield node
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        thread.join(timeout=5)
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
