@@ -482,11 +482,13 @@ class BridgeCore:
 
     # --- outbound ----------------------------------------------------------------------------
 
-    def deliver(self, full_topic: str, msg_json: str) -> None:
-        """A ROS message arrived (already JSON): queue it for every subscriber of that exact topic."""
+    def deliver(self, full_topic: str, msg_json: str, current: bool = True) -> None:
+        """A ROS message arrived (already JSON): queue it for every subscriber of that exact topic.
+        `current` is False for a message taken after its publisher left: it is passed on but not
+        remembered as the topic's state."""
         now = self._clock()
         rule = self._subscribable.get(full_topic)
-        if rule is not None and rule.topic_class == "state":
+        if current and rule is not None and rule.topic_class == "state":
             self._last_state[full_topic] = msg_json
         for session in self._subscribers.get(full_topic, ()):
             sub = session.subscriptions[full_topic]

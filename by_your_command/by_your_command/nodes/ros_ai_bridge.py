@@ -73,10 +73,14 @@ class SequenceGaps:
 
     def __init__(self) -> None:
         self.publishers = 0
+        # The last publisher left: a message still in the reader's queue, taken after the unmatch
+        # event, is not the current state (the publisher that made it is gone).
+        self.departed = False
         self._last: int | None = None
 
     def matched(self, current_count: int) -> None:
         self.publishers = current_count
+        self.departed = current_count == 0
         self._last = None  # a publisher came or went: start a new baseline
 
     def lost_before(self, sequence: int | None) -> int:
@@ -180,7 +184,7 @@ class _NodeGraph:
                     self.conversion_errors += 1
                     self._node.get_logger().error(f"cannot convert a message on {full}: {error}")
                     return
-                self._loop.call_soon_threadsafe(self._route, full, text)
+                self._loop.call_soon_threadsafe(self._route, full, text, not gaps.departed)
                 self._posted += 1
             except RuntimeError:
                 pass  # the loop is closed: the node is shutting down
@@ -193,10 +197,10 @@ class _NodeGraph:
     def _post(self, callback: Any, *args: Any) -> None:
         self._loop.call_soon_threadsafe(callback, *args)
 
-    def _route(self, full: str, text: str) -> None:
+    def _route(self, full: str, text: str, current: bool) -> None:
         self._routed += 1
         if self.core is not None:
-            self.core.deliver(full, text)
+            self.core.deliver(full, text, current)
 
     def subscribe(self, rule: TopicRule, full_topic: str) -> None:
         self._create_subscription(full_topic)

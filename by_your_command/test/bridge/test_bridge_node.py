@@ -23,6 +23,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 from by_your_command.nodes import _qos
+from by_your_command.nodes.ros_ai_bridge import SequenceGaps
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(90)]
 
@@ -172,6 +173,17 @@ class Reader:
     def close(self) -> None:
         self.connection.__exit__(None, None, None)
         self._thread.join(timeout=5)
+
+
+def test_messages_after_the_last_publisher_left_are_marked_departed() -> None:
+    gaps = SequenceGaps()
+    assert not gaps.departed  # a first message may be taken before its publisher's match event
+    gaps.matched(1)
+    assert not gaps.departed
+    gaps.matched(0)
+    assert gaps.departed
+    gaps.matched(1)
+    assert not gaps.departed
 
 
 def test_state_of_a_publisher_that_left_is_not_replayed(ros_namespace: str, graph_node: Node) -> None:

@@ -389,3 +389,18 @@ def test_state_of_a_topic_without_publisher_is_forgotten() -> None:
     core.deliver("/robot1/voice_activity", '{"data":false}')  # a new publisher: remembered again
     core.handle_frame(core.open_session("later"), '{"op":"subscribe","topic":"voice_activity"}')
     assert json.loads(core.sessions[-1].queue.take_nowait() or "")["msg"] == {"data": False}
+
+
+def test_a_message_taken_after_its_publisher_left_is_passed_on_but_not_remembered() -> None:
+    core, _ = make_core()
+    early = core.open_session("early")
+    core.handle_frame(early, '{"op":"subscribe","topic":"voice_activity"}')
+    core.deliver("/robot1/voice_activity", '{"data":true}')
+    core.forget_state("/robot1/voice_activity")
+    core.deliver("/robot1/voice_activity", '{"data":true}', current=False)  # was in the reader queue
+    frames = [json.loads(text) for text in iter(early.queue.take_nowait, None)]
+    assert [f["code"] for f in frames if f["op"] == "status"] == ["publisher_gone"]
+    assert [f["msg"] for f in frames if f["op"] == "publish"] == [{"data": True}, {"data": True}]
+    late = core.open_session("late")
+    core.handle_frame(late, '{"op":"subscribe","topic":"voice_activity"}')
+    assert late.queue.take_nowait() is None
