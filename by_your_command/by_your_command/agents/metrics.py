@@ -40,7 +40,20 @@ class SessionMetrics:
         return {"record": "session", **_flatten(self)}
 
 
-MetricsRecord = TurnMetrics | SessionMetrics
+@dataclass(frozen=True)
+class SessionOpenedMetrics:
+    """A provider session is open (billing runs from here): monitors show it before its first turn."""
+
+    agent_id: str
+    conversation_id: str
+    session: int
+    provider: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"record": "session_open", **asdict(self)}
+
+
+MetricsRecord = TurnMetrics | SessionMetrics | SessionOpenedMetrics
 
 
 def _flatten(record: TurnMetrics | SessionMetrics) -> dict[str, Any]:

@@ -50,7 +50,7 @@ from by_your_command.agents.inputs import (
     UtteranceChunk,
     VoiceActivity,
 )
-from by_your_command.agents.metrics import Counters, SessionMetrics, TurnMetrics
+from by_your_command.agents.metrics import Counters, SessionMetrics, SessionOpenedMetrics, TurnMetrics
 from by_your_command.agents.port import DetectionReport, PortClosed, RobotPort, VoiceChunk
 from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup
 from by_your_command.agents.reply_audio import ReplyAudio, pieces
@@ -701,6 +701,10 @@ class AgentRuntime:
             log.info(
                 "agent %s: session %d open (%s)", self.config.agent_id, session.serial, session.provider.name
             )
+            opened = SessionOpenedMetrics(
+                self.config.agent_id, self.context.conversation_id, session.serial, session.provider.name
+            )
+            await self._publish("metrics", self._port.publish_metrics(opened))
         elif isinstance(message, SessionFailed):
             await self._lose_session(message.reason, message.connected, message.error)
         else:
@@ -1054,12 +1058,20 @@ class AgentRuntime:
             raise AgentFatal(_fatal_message(error))
         if error is not None and error.retry_after_s is not None:
             self._not_before = max(self._not_before, self._clock.now() + error.retry_after_s)
-        if connected:
-            self.counters.sessions_failed += 1
+        if connected and self._session_ending:
+            # Announced (goAway) and closed before our turn boundary came, e.g. while the last reply
+            # still played here: the end it announced, not a failure. A cut reply still fails below.
+            log.info(
+                "agent %s: session %d ended by the provider: %s", self.config.agent_id, self._serial, reason
+            )
+            await self._close_session(self._session_ending)
         else:
-            self.counters.connect_failures += 1
-        log.warning("agent %s: session %d lost: %s", self.config.agent_id, self._serial, reason)
-        await self._close_session(f"failed: {reason}")
+            if connected:
+                self.counters.sessions_failed += 1
+            else:
+                self.counters.connect_failures += 1
+            log.warning("agent %s: session %d lost: %s", self.config.agent_id, self._serial, reason)
+            await self._close_session(f"failed: {reason}")
         turn = self._turn_out
         if turn is not None and (turn.reply_started or not turn.replayable):
             await self._fail_turn(turn, f"the provider session was lost ({reason})")

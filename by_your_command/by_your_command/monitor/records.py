@@ -72,7 +72,14 @@ class SessionRecord:
     tokens: Tokens
 
 
-Record = TurnRecord | SessionRecord
+@dataclass(frozen=True)
+class SessionOpenRecord:
+    agent_id: str
+    provider: str
+    session: int
+
+
+Record = TurnRecord | SessionRecord | SessionOpenRecord
 
 # JSON names of the usage fields (agents/events.Usage) → Tokens fields.
 _USAGE_FIELDS = {
@@ -98,6 +105,8 @@ def parse_record(text: str) -> Record:
     agent_id = _name(data, "agent_id", required=True)
     provider = _name(data, "provider", required=False)
     session = _count(data, "session")
+    if kind == "session_open":
+        return SessionOpenRecord(agent_id, provider, session)
     tokens = _tokens(data.get("usage", {}))
     if kind == "turn":
         return TurnRecord(
@@ -120,7 +129,7 @@ def parse_record(text: str) -> Record:
             _text(data, "close_reason", MAX_REASON_CHARS),
             tokens,
         )
-    raise BadRecord(f"record must be 'turn' or 'session', got {str(kind)[:20]!r}")
+    raise BadRecord(f"record must be 'turn', 'session' or 'session_open', got {str(kind)[:20]!r}")
 
 
 def _no_constant(name: str) -> Any:

@@ -15,7 +15,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from by_your_command.monitor.cost import Prices, estimate_cost
-from by_your_command.monitor.records import BadRecord, Record, SessionRecord, Tokens, TurnRecord, parse_record
+from by_your_command.monitor.records import (
+    BadRecord,
+    Record,
+    SessionOpenRecord,
+    SessionRecord,
+    Tokens,
+    TurnRecord,
+    parse_record,
+)
 
 MAX_AGENTS = 32  # records of further agent ids are counted, not kept: memory stays bounded
 OK, WARN = "ok", "warn"
@@ -48,7 +56,7 @@ class _Agent:
     agent_id: str
     latency_turns: int
     provider: str = ""
-    state: str = "unknown"  # nothing seen yet: "in session" after a turn
+    state: str = "unknown"  # nothing seen yet: "in session" once a session opened
     open_session: int | None = None
     open_tokens: Tokens = field(default_factory=Tokens)
     closed_tokens: Tokens = field(default_factory=Tokens)
@@ -68,15 +76,18 @@ class _Agent:
     def tokens(self) -> Tokens:
         return self.closed_tokens + self.open_tokens
 
-    def turn(self, record: TurnRecord) -> None:
-        if self.open_session != record.session:
+    def opened(self, session: int) -> None:
+        if self.open_session != session:
             if self.open_session is not None:  # its record never came: keep what its turns used
                 self.closed_tokens = self.closed_tokens + self.open_tokens
                 self.sessions += 1
                 self.sessions_unreported += 1
-            self.open_session, self.open_tokens = record.session, Tokens()
-        self.open_tokens = self.open_tokens + record.tokens
+            self.open_session, self.open_tokens = session, Tokens()
         self.state = "in session"
+
+    def turn(self, record: TurnRecord) -> None:
+        self.opened(record.session)  # also when the session_open record was lost
+        self.open_tokens = self.open_tokens + record.tokens
         self.turns += 1
         self.outcomes[record.outcome] += 1
         self.last_outcome = record.outcome
@@ -136,6 +147,8 @@ class AgentSummary:
             agent.provider = record.provider
         if isinstance(record, TurnRecord):
             agent.turn(record)
+        elif isinstance(record, SessionOpenRecord):
+            agent.opened(record.session)
         else:
             agent.session(record)
         return record

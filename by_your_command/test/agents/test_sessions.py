@@ -11,7 +11,7 @@ from fake_provider import FakeFactory, FakeProvider, spoken_reply
 from virtual_time import run_virtual
 
 from by_your_command.agents.config import AgentConfig
-from by_your_command.agents.events import ProviderError, Usage, UserTranscript
+from by_your_command.agents.events import ProviderError, SessionEnding, Usage, UserTranscript
 from by_your_command.agents.inputs import (
     ConversationReset,
     InputLost,
@@ -19,6 +19,7 @@ from by_your_command.agents.inputs import (
     SharedTurn,
     VoiceActivity,
 )
+from by_your_command.agents.metrics import SessionOpenedMetrics
 from by_your_command.agents.provider import ProviderFailure, Role
 from by_your_command.agents.runtime import AgentFatal
 
@@ -158,6 +159,30 @@ def test_a_reply_cut_by_a_dropped_session_is_failed_and_reported() -> None:
         assert [t.outcome for t in agent.port.turns()] == ["failed", "completed"]
         assert any("failed" in text for text in agent.port.of("text"))
         assert agent.runtime.counters.turns_failed == 1
+
+    run_virtual(scenario())
+
+
+def test_a_provider_closing_after_its_go_away_while_the_reply_plays_is_the_announced_end() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=3.0), spoken_reply("r2", 0.2))
+        async with running_agent(AgentConfig(pause_timeout_s=100.0), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(0.5)  # the whole reply is received; it plays for 3 s
+            factory.last.emit(SessionEnding("goAway", 0.5))
+            await asyncio.sleep(0.5)
+            factory.last.drop()  # the server closes before our turn boundary (the reply still plays)
+            await asyncio.sleep(4.0)
+            await speak(agent.port, 2, seconds=0.3)
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        assert [t.outcome for t in agent.port.turns()] == ["completed", "completed"]
+        reasons = [s.close_reason for s in agent.port.sessions()]
+        assert reasons == ["the provider is ending the session (goAway)", "agent stopped"]
+        opened = [r.session for r in agent.port.of("metrics") if isinstance(r, SessionOpenedMetrics)]
+        assert opened == [1, 2]  # each session announced when it opened, before its turns
+        assert agent.runtime.counters.sessions_failed == 0
+        assert not any("failed" in text for text in agent.port.of("text"))
 
     run_virtual(scenario())
 

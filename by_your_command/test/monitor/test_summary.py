@@ -8,9 +8,9 @@ from typing import Any
 import pytest
 
 from by_your_command.agents.events import Usage
-from by_your_command.agents.metrics import SessionMetrics, TurnMetrics
+from by_your_command.agents.metrics import SessionMetrics, SessionOpenedMetrics, TurnMetrics
 from by_your_command.monitor.cost import Prices, estimate_cost
-from by_your_command.monitor.records import BadRecord, Tokens, TurnRecord, parse_record
+from by_your_command.monitor.records import BadRecord, SessionOpenRecord, Tokens, TurnRecord, parse_record
 from by_your_command.monitor.summary import MAX_AGENTS, OK, WARN, AgentSummary, session_state
 
 pytestmark = pytest.mark.unit
@@ -60,6 +60,33 @@ def test_the_agents_own_records_are_read_back() -> None:
     )
 
 
+def opened(session: int, agent: str = "robot") -> str:
+    return json.dumps(SessionOpenedMetrics(agent, "c1", session, "openai_realtime").as_dict())
+
+
+def test_a_session_shows_as_soon_as_it_opens_before_any_turn() -> None:
+    assert parse_record(opened(4)) == SessionOpenRecord("robot", "openai_realtime", 4)
+    summary = AgentSummary({})
+    summary.feed(opened(1))
+    agent = summary.snapshot()["agents"][0]
+    assert (agent["state"], agent["open_session"], agent["turns"], agent["sessions"]) == (
+        "in session",
+        1,
+        0,
+        0,
+    )
+    summary.feed(turn(1, 1, input_text_tokens=10))  # its turns count in the session it opened
+    summary.feed(closed(1, 3.0, "pause of 2 s", input_text_tokens=10))
+    summary.feed(opened(2))
+    agent = summary.snapshot()["agents"][0]
+    assert (agent["state"], agent["open_session"], agent["sessions"], agent["sessions_unreported"]) == (
+        "in session",
+        2,
+        1,
+        0,
+    )
+
+
 @pytest.mark.parametrize(
     ("text", "why"),
     [
@@ -69,6 +96,7 @@ def test_the_agents_own_records_are_read_back() -> None:
         ('{"record": "party", "agent_id": "a", "session": 1}', "record must be"),
         ('{"record": "session", "agent_id": "a", "session": -1}', "session"),
         ('{"record": "session", "agent_id": "a", "session": true}', "session"),
+        ('{"record": "session_open", "agent_id": "a", "session": "1"}', "session"),
         (SESSION.replace("BILLED", "NaN"), "NaN"),
         (SESSION.replace("BILLED", "1e308"), "billed_s"),
         (

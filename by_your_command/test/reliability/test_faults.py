@@ -297,8 +297,10 @@ def test_go_away_loses_no_turn_and_every_session_and_turn_is_accounted(
     assert outcomes(probe) == ["completed", "completed"] and failures(probe) == []
     # The goAway left 0.5 s: the agent keeps a session while its reply may still be audible (no
     # player here: its length + 2 s), so the server's close usually comes first. Either way the
-    # session is closed, recorded with its turn, and the next turn goes to a resumed session.
-    assert sessions[0]["turns"] == 1 and sessions[0]["close_reason"], sessions[0]
+    # session is recorded as the end the goAway announced (not a failure), with its turn, and the
+    # next turn goes to a resumed session.
+    assert sessions[0]["turns"] == 1, sessions[0]
+    assert sessions[0]["close_reason"] == "the provider is ending the session (goAway)", sessions[0]
     assert [s["turns"] for s in sessions] == [1, 1]  # the session the agent stopped is recorded too
     assert any("goAway" in line for line in lines)
     assert ledger.check()

@@ -113,13 +113,12 @@ class EventTranslator:
     def call_name(self, call_id: str) -> str | None:
         return self._call_names.get(call_id)
 
-    def connection_lost(self) -> list[ProviderEvent]:
-        """The socket died: end the reply in flight so the runtime can close its stream."""
+    def connection_lost(self, why: str = "connection_lost") -> list[ProviderEvent]:
+        """The socket died (`why`: the close as the server gave it): end the reply in flight so the
+        runtime can close its stream."""
         out = self._flush_heard()
         if self._response is not None:
-            out.append(
-                ResponseDone(self._response, ResponseStatus.FAILED, self._take_usage(), "connection_lost")
-            )
+            out.append(ResponseDone(self._response, ResponseStatus.FAILED, self._take_usage(), why))
             self._response = None
         return out
 

@@ -345,6 +345,7 @@ class GeminiLiveProvider:
         return self._events.__aiter__()
 
     async def _read(self, session: Any) -> None:
+        why = "connection_lost"  # what a reply cut by the end of the connection reports
         try:
             while True:  # receive() ends at every turnComplete: keep reading the socket
                 try:
@@ -360,11 +361,12 @@ class GeminiLiveProvider:
             if report is not None:
                 log.info("Gemini closed the session: %s %s", closed.code, reason)
                 self._events.put_last(report)
+                why = report.message
         except ConnectionClosed:
             self._events.put_last(ProviderError("server_closed", "the Gemini connection was lost"))
         finally:
             self._closed = True
-            for event in self._translator.connection_lost():
+            for event in self._translator.connection_lost(why):
                 self._events.put_last(event)
             self._events.end()
 

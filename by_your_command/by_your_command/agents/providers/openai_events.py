@@ -98,11 +98,12 @@ class EventTranslator:
         while len(self._audio_bytes) > _REMEMBERED:
             self._audio_bytes.popitem(last=False)
 
-    def connection_lost(self) -> list[ProviderEvent]:
-        """The socket died: end the reply in flight so the runtime can close its stream."""
+    def connection_lost(self, why: str = "connection_lost") -> list[ProviderEvent]:
+        """The socket died (`why`: the close as the server gave it): end the reply in flight so the
+        runtime can close its stream."""
         if self.active_response is None:
             return []
-        done = ResponseDone(self.active_response, ResponseStatus.FAILED, reason="connection_lost")
+        done = ResponseDone(self.active_response, ResponseStatus.FAILED, reason=why)
         self.active_response = None
         return [done]
 

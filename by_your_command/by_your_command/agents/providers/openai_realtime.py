@@ -349,11 +349,13 @@ class OpenAIRealtimeProvider:
         return self._events.__aiter__()
 
     async def _read(self, connection: AsyncRealtimeConnection) -> None:
+        why = "connection_lost"  # what a reply cut by the end of the connection reports
         try:
             while True:
                 try:
                     event = connection.parse_event(await connection.recv_bytes())
-                except ConnectionClosed:
+                except ConnectionClosed as closed:
+                    why = f"connection closed: {closed}"  # the close code and the server's reason
                     break
                 except ValueError as error:  # not JSON / not an event: report, keep the session
                     await self._events.put(
@@ -367,7 +369,7 @@ class OpenAIRealtimeProvider:
             pass
         finally:
             self._closed = True
-            for translated in self._translator.connection_lost():
+            for translated in self._translator.connection_lost(why):
                 self._events.put_last(translated)
             self._events.end()
 

@@ -157,6 +157,8 @@
       if (record.record === "turn") {
         const outcome = text(record.outcome, 40);
         addLine("latency", `${agent}: first audio ${ms(record.first_audio_ms)}, reply done ${ms(record.reply_ms)} (${outcome})`);
+      } else if (record.record === "session_open") {
+        addLine("session", `${agent}: session ${isNumber(record.session) ? record.session : "?"} open`);
       } else if (record.record === "session") {
         const billed = isNumber(record.billed_s) ? `${record.billed_s.toFixed(1)} s` : "?";
         addLine("session", `${agent}: session closed after ${billed} billed (${text(record.close_reason, 120)})`);

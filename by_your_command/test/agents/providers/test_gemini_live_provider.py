@@ -404,6 +404,7 @@ def test_deadline_close_mid_reply_ends_the_reply_and_the_session() -> None:
         assert "1011" in errors_[0].message
         failed = [e for e in got if isinstance(e, ResponseDone)]
         assert failed and failed[-1].status is ResponseStatus.FAILED
+        assert failed[-1].reason == errors_[0].message  # the turn's report names the 1011
         with pytest.raises(ProviderClosed):
             await provider.send_audio(speech(40))
 
