@@ -22,7 +22,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +39,7 @@ from by_your_command.emulators import gemini_script as gemini
 from by_your_command.emulators.gemini_wire import decode_blob, field_value
 from by_your_command.emulators.openai_realtime import OpenAIRealtimeEmulator, start
 from by_your_command.emulators.openai_script import Script
+from by_your_command.emulators.threaded import ThreadedEmulator
 
 T = TypeVar("T")
 VAD_RATE = 16000
@@ -64,32 +65,11 @@ def wait_until(condition: Callable[[], T | None], timeout: float, what: str) -> 
 # --- the emulator ------------------------------------------------------------------------------
 
 
-class _LoopThread:
-    def __init__(self) -> None:
-        self._loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
-        self._thread.start()
-
-    def _run(self, coroutine: Coroutine[Any, Any, T]) -> T:
-        return asyncio.run_coroutine_threadsafe(coroutine, self._loop).result(timeout=10)
-
-    def _read(self, read: Callable[[], T]) -> T:
-        async def on_loop() -> T:
-            return read()
-
-        return self._run(on_loop())
-
-    def _stop_loop(self) -> None:
-        self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(timeout=5)
-
-
-class EmulatorThread(_LoopThread):
+class EmulatorThread(ThreadedEmulator[OpenAIRealtimeEmulator]):
     """The OpenAI Realtime emulator."""
 
     def __init__(self, script: Script) -> None:
-        super().__init__()
-        self.handle: OpenAIRealtimeEmulator = self._run(start(script=script))
+        super().__init__(start(script=script))
 
     def provider_settings(self) -> dict[str, Any]:
         return {"type": "openai", "websocket_base_url": self.handle.websocket_base_url}
@@ -97,19 +77,12 @@ class EmulatorThread(_LoopThread):
     def received_types(self) -> list[str]:
         return self._read(self.handle.received_types)
 
-    def stop(self) -> None:
-        try:
-            self._run(self.handle.stop())
-        finally:
-            self._stop_loop()
 
-
-class GeminiEmulatorThread(_LoopThread):
+class GeminiEmulatorThread(ThreadedEmulator[gemini_live.GeminiLiveEmulator]):
     """The Gemini Live emulator (TLS: the SDK only speaks wss)."""
 
     def __init__(self, script: gemini.Script) -> None:
-        super().__init__()
-        self.handle: gemini_live.GeminiLiveEmulator = self._run(gemini_live.start(script=script))
+        super().__init__(gemini_live.start(script=script))
 
     def provider_settings(self) -> dict[str, Any]:
         return {"type": "gemini", "base_url": self.handle.base_url, "ca_file": str(self.handle.cert_file)}
@@ -133,12 +106,6 @@ class GeminiEmulatorThread(_LoopThread):
         """The `index`th camera frame the client sent (JPEG)."""
         videos = self._read(lambda: [v for r in self.handle.received if (v := _video(r.body)) is not None])
         return decode_blob(field_value(videos[index], "data"), "video")
-
-    def stop(self) -> None:
-        try:
-            self._run(self.handle.stop())
-        finally:
-            self._stop_loop()
 
 
 def _video(body: dict[str, Any]) -> dict[str, Any] | None:
@@ -453,30 +420,37 @@ def agent_graph(
 
 
 def dds_one_way_ms(trials: int, chunk: np.ndarray) -> list[float]:
-    """A raw DDS publish→subscribe of one utterance chunk between two participants of this process
-    (each its own context), reliable QoS like prompt_voice: publish call → subscriber callback."""
-    import rclpy
+    """A raw DDS publish→subscribe of one utterance chunk (as on prompt_voice)."""
     from by_your_command_msgs.msg import AudioDataUtterance
+
+    msg = AudioDataUtterance(int16_data=chunk.astype(np.int16).tolist(), sample_rate=VAD_RATE, channels=1)
+    return dds_message_one_way_ms(trials, msg)
+
+
+def dds_message_one_way_ms(trials: int, msg: Any) -> list[float]:
+    """A raw DDS publish→subscribe of the ROS message `msg` between two participants of this
+    process (each its own context), reliable QoS: publish call → subscriber callback."""
+    import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
     from by_your_command.nodes._qos import RELIABLE
 
-    namespace = f"/bench_dds_{os.getpid()}"
     contexts = [rclpy.Context(), rclpy.Context()]
     for context in contexts:
         rclpy.init(context=context)
+    namespace = f"/bench_dds_{os.getpid()}_{id(contexts)}"
     sender = Node("dds_sender", namespace=namespace, context=contexts[0])
     receiver = Node("dds_receiver", namespace=namespace, context=contexts[1])
     arrived: list[float] = []
     got = threading.Event()
 
-    def on_chunk(_: Any) -> None:
+    def on_message(_: Any) -> None:
         arrived.append(time.monotonic())
         got.set()
 
-    receiver.create_subscription(AudioDataUtterance, "chunk", on_chunk, RELIABLE)
-    publisher = sender.create_publisher(AudioDataUtterance, "chunk", RELIABLE)
+    receiver.create_subscription(type(msg), "message", on_message, RELIABLE)
+    publisher = sender.create_publisher(type(msg), "message", RELIABLE)
     executor = SingleThreadedExecutor(context=contexts[1])
     executor.add_node(receiver)
     thread = threading.Thread(target=executor.spin, daemon=True)
@@ -484,7 +458,6 @@ def dds_one_way_ms(trials: int, chunk: np.ndarray) -> list[float]:
     latencies: list[float] = []
     try:
         wait_until(lambda: publisher.get_subscription_count() > 0, 30, "DDS discovery")
-        msg = AudioDataUtterance(int16_data=chunk.astype(np.int16).tolist(), sample_rate=VAD_RATE, channels=1)
         for index in range(trials + 3):
             got.clear()
             time.sleep(0.01)

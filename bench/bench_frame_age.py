@@ -43,6 +43,7 @@ from _agent_bench import (  # noqa: E402
     AgentGraph,
     GeminiEmulatorThread,
     agent_graph,
+    dds_message_one_way_ms,
     percentile,
     summary,
     table,
@@ -193,52 +194,11 @@ def measure(trials: int) -> dict[str, list[float]]:
 
 def dds_frame_one_way_ms(trials: int) -> list[float]:
     """A raw DDS publish→subscribe of one camera frame between two participants of this process."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
     from sensor_msgs.msg import Image
 
-    from by_your_command.nodes._qos import RELIABLE
-
-    contexts = [rclpy.Context(), rclpy.Context()]
-    for context in contexts:
-        rclpy.init(context=context)
-    namespace = f"/bench_frame_dds_{id(contexts)}"
-    sender = Node("frame_sender", namespace=namespace, context=contexts[0])
-    receiver = Node("frame_receiver", namespace=namespace, context=contexts[1])
-    got = threading.Event()
-    arrived: list[float] = []
-
-    def on_frame(_: Any) -> None:
-        arrived.append(time.monotonic())
-        got.set()
-
-    receiver.create_subscription(Image, "frame", on_frame, RELIABLE)
-    publisher = sender.create_publisher(Image, "frame", RELIABLE)
-    executor = SingleThreadedExecutor(context=contexts[1])
-    executor.add_node(receiver)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    latencies: list[float] = []
-    try:
-        wait_until(lambda: publisher.get_subscription_count() > 0, 30, "DDS discovery")
-        msg = Image(width=WIDTH, height=HEIGHT, encoding="rgb8", step=WIDTH * 3)
-        msg.data = frame_pixels(7)
-        for index in range(trials + 3):
-            got.clear()
-            time.sleep(0.01)
-            sent = time.monotonic()
-            publisher.publish(msg)
-            if got.wait(5) and index >= 3:
-                latencies.append(1000 * (arrived[-1] - sent))
-    finally:
-        executor.shutdown()
-        thread.join(timeout=5)
-        sender.destroy_node()
-        receiver.destroy_node()
-        for context in contexts:
-            rclpy.try_shutdown(context=context)
-    return latencies
+    msg = Image(width=WIDTH, height=HEIGHT, encoding="rgb8", step=WIDTH * 3)
+    msg.data = frame_pixels(7)
+    return dds_message_one_way_ms(trials, msg)
 
 
 def encode_ms(runs: int) -> list[float]:

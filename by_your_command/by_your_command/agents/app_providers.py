@@ -87,6 +87,23 @@ def build_provider(choice: ProviderChoice, environ: Mapping[str, str]) -> BuiltP
     return dataclasses.replace(built, key_env=key_env)
 
 
+# --- openai and gemini -------------------------------------------------------------------------
+
+
+def _cloud_settings(cls: Any, settings: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """A cloud provider's config, and every setting for --check; its `extra_headers` may not carry
+    credentials (they come from the environment)."""
+    config = typed_settings(cls, settings, "provider")
+    bad_headers = sorted(name for name, _ in config.extra_headers if name.lower() in _SECRET_HEADERS)
+    if bad_headers:
+        raise AgentConfigError(
+            [f"provider.extra_headers.{bad_headers[0]}: credentials come from the environment, not files"]
+        )
+    values = dataclasses.asdict(config)
+    values["extra_headers"] = dict(config.extra_headers)
+    return config, values
+
+
 # --- openai ------------------------------------------------------------------------------------
 
 
@@ -94,18 +111,11 @@ def _build_openai(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     # Imported here: the openai SDK is only needed by agents that use it.
     from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeConfig, OpenAIRealtimeProvider
 
-    config = typed_settings(OpenAIRealtimeConfig, settings, "provider")
-    bad_headers = sorted(name for name, _ in config.extra_headers if name.lower() in _SECRET_HEADERS)
-    if bad_headers:
-        raise AgentConfigError(
-            [f"provider.extra_headers.{bad_headers[0]}: credentials come from the environment, not files"]
-        )
+    config, values = _cloud_settings(OpenAIRealtimeConfig, settings)
 
     def factory() -> OpenAIRealtimeProvider:
         return OpenAIRealtimeProvider(config, api_key=key)
 
-    values = dataclasses.asdict(config)
-    values["extra_headers"] = dict(config.extra_headers)
     return BuiltProvider(factory, values, key)
 
 
@@ -140,19 +150,12 @@ def _build_gemini(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
     from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
 
-    config = typed_settings(GeminiLiveConfig, settings, "provider")
-    bad_headers = sorted(name for name, _ in config.extra_headers if name.lower() in _SECRET_HEADERS)
-    if bad_headers:
-        raise AgentConfigError(
-            [f"provider.extra_headers.{bad_headers[0]}: credentials come from the environment, not files"]
-        )
+    config, values = _cloud_settings(GeminiLiveConfig, settings)
     handles = ResumptionHandles()  # one per agent: every session of this agent resumes the last one
 
     def factory() -> GeminiLiveProvider:
         return GeminiLiveProvider(config, api_key=key, resumption=handles)
 
-    values = dataclasses.asdict(config)
-    values["extra_headers"] = dict(config.extra_headers)
     return BuiltProvider(factory, values, key)
 
 

@@ -1,6 +1,9 @@
-"""`byc emulate openai`: a local OpenAI Realtime server with scripted replies, in the foreground.
+"""`byc emulate openai|gemini`: a local OpenAI Realtime or Gemini Live server with scripted replies,
+in the foreground.
 
-Point an agent (or any OpenAI SDK program) at it with the printed OPENAI_BASE_URL; Ctrl-C stops it.
+Point an agent (or any OpenAI SDK program) at the OpenAI one with the printed OPENAI_BASE_URL. The
+Gemini one serves TLS with a certificate made at start (google-genai only speaks wss://) and prints
+the base URL and the certificate to trust. Ctrl-C stops either (and removes the certificate).
 """
 
 from __future__ import annotations
@@ -8,11 +11,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from collections.abc import Coroutine
 from pathlib import Path
+from typing import Any
 
-from by_your_command.cli import emulate_gemini
-from by_your_command.emulators.openai_realtime import start
-from by_your_command.emulators.openai_script import Script, ScriptError, load_script
+from by_your_command.emulators import gemini_live, gemini_script, openai_realtime, openai_script
+from by_your_command.emulators.script_common import ScriptError
 
 VENDORS = ("openai", "gemini")
 DEFAULT_PORTS = {"openai": 8765, "gemini": 8766}
@@ -30,8 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plain", action="store_true", help="gemini: plain ws:// instead of TLS")
 
 
-async def _serve(host: str, port: int, script: Script) -> None:
-    emulator = await start(host, port, script)
+async def _serve_openai(host: str, port: int, script: openai_script.Script) -> None:
+    emulator = await openai_realtime.start(host, port, script)
     print(f"OpenAI Realtime emulator listening on {emulator.websocket_base_url}/realtime", flush=True)
     print(f"  export OPENAI_BASE_URL={emulator.base_url}", flush=True)
     print(f"  or agent config: websocket_base_url: {emulator.websocket_base_url}", flush=True)
@@ -42,22 +46,47 @@ async def _serve(host: str, port: int, script: Script) -> None:
         await emulator.stop()
 
 
+async def _serve_gemini(host: str, port: int, script: gemini_script.Script, tls: bool) -> None:
+    emulator = await gemini_live.start(host, port, script, tls=tls)
+    print(f"Gemini Live emulator listening on {emulator.websocket_url}", flush=True)
+    if emulator.cert_file is not None:
+        print(f"  agent config: base_url: {emulator.base_url}  ca_file: {emulator.cert_file}", flush=True)
+        print(f"  or: export GOOGLE_GEMINI_BASE_URL={emulator.base_url}", flush=True)
+        print(
+            "      and trust the certificate above (ca_file, or SSL_CERT_FILE for that process only)",
+            flush=True,
+        )
+    print("  any API key works (GEMINI_API_KEY=emulator). Ctrl-C stops.", flush=True)
+    try:
+        await emulator.serve_forever()
+    finally:
+        await emulator.stop()
+
+
+def _server(args: argparse.Namespace) -> Coroutine[Any, Any, None]:
+    """The vendor's server, its script read first (OSError, ScriptError)."""
+    if args.vendor == "gemini":
+        gemini = gemini_script.load_script(args.script) if args.script else gemini_script.Script()
+        return _serve_gemini(args.host, args.port, gemini, tls=not args.plain)
+    openai = openai_script.load_script(args.script) if args.script else openai_script.Script()
+    return _serve_openai(args.host, args.port, openai)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.port is None:
         args.port = DEFAULT_PORTS[args.vendor]
-    if args.vendor == "gemini":
-        return emulate_gemini.run(args)
+    prog = "byc emulate gemini" if args.vendor == "gemini" else "byc emulate"
     try:
-        script = load_script(args.script) if args.script else Script()
+        server = _server(args)
     except (OSError, ScriptError) as error:
-        print(f"byc emulate: {error}", file=sys.stderr)
+        print(f"{prog}: {error}", file=sys.stderr)
         return 2
     try:
-        asyncio.run(_serve(args.host, args.port, script))
+        asyncio.run(server)
     except KeyboardInterrupt:
         print("stopped", flush=True)
     except OSError as error:  # port in use, address not available
-        print(f"byc emulate: cannot listen on {args.host}:{args.port}: {error}", file=sys.stderr)
+        print(f"{prog}: cannot listen on {args.host}:{args.port}: {error}", file=sys.stderr)
         return 1
     return 0
 

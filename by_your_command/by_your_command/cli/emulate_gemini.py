@@ -7,12 +7,10 @@ base URL and the certificate to trust; Ctrl-C stops it and removes the certifica
 from __future__ import annotations
 
 import argparse
-import asyncio
 import sys
 from pathlib import Path
 
-from by_your_command.emulators.gemini_live import start
-from by_your_command.emulators.gemini_script import Script, ScriptError, load_script
+from by_your_command.cli import emulate
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,43 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-async def _serve(host: str, port: int, script: Script, tls: bool) -> None:
-    emulator = await start(host, port, script, tls=tls)
-    print(f"Gemini Live emulator listening on {emulator.websocket_url}", flush=True)
-    if emulator.cert_file is not None:
-        print(f"  agent config: base_url: {emulator.base_url}  ca_file: {emulator.cert_file}", flush=True)
-        print(f"  or: export GOOGLE_GEMINI_BASE_URL={emulator.base_url}", flush=True)
-        print(
-            "      and trust the certificate above (ca_file, or SSL_CERT_FILE for that process only)",
-            flush=True,
-        )
-    print("  any API key works (GEMINI_API_KEY=emulator). Ctrl-C stops.", flush=True)
-    try:
-        await emulator.serve_forever()
-    finally:
-        await emulator.stop()
-
-
-def run(args: argparse.Namespace) -> int:
-    try:
-        script = load_script(args.script) if args.script else Script()
-    except (OSError, ScriptError) as error:
-        print(f"byc emulate gemini: {error}", file=sys.stderr)
-        return 2
-    try:
-        asyncio.run(_serve(args.host, args.port, script, tls=not getattr(args, "plain", False)))
-    except KeyboardInterrupt:
-        print("stopped", flush=True)
-    except OSError as error:  # port in use, address not available
-        print(f"byc emulate gemini: cannot listen on {args.host}:{args.port}: {error}", file=sys.stderr)
-        return 1
-    return 0
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="byc emulate gemini", description=__doc__)
     add_arguments(parser)
-    return run(parser.parse_args(argv))
+    return emulate.run(parser.parse_args(argv, argparse.Namespace(vendor="gemini")))
 
 
 if __name__ == "__main__":

@@ -43,21 +43,13 @@ from pathlib import Path
 from typing import Literal
 
 from by_your_command.emulators.script_common import (
-    TURN_KEYS,
     CallTool,
     Reply,
     Say,
     ScriptError,
     Silence,
-    check_script_keys,
-    check_turn_keys,
     load_yaml_script,
-    optional_int,
-    parse_reply,
-    parse_say,
-    strings,
-    turn_list,
-    typed,
+    parse_script,
 )
 
 __all__ = ["CallTool", "Reply", "Say", "Script", "ScriptError", "Silence", "Turn", "load_script"]
@@ -118,7 +110,7 @@ class Script:
             raise ValueError("frame_modality must be IMAGE or VIDEO, image_tokens >= 0")
 
 
-_TURN_KEYS = TURN_KEYS | {"stall_after_ms", "drop_after_ms", "close_after_ms", "cancel_after_ms"}
+# Top-level keys that set a `Script` field of the same name, with their types:
 _SCALARS: dict[str, type] = {
     "default_heard": str,
     "pace": float,
@@ -132,43 +124,12 @@ _SCALARS: dict[str, type] = {
     "image_tokens": int,
     "frame_modality": str,
 }
-_SCRIPT_KEYS = frozenset({"turns", "default_reply", "rejected_api_keys", "known_models", *_SCALARS})
-
-
-def _turn(raw: object, where: str) -> Turn:
-    turn = check_turn_keys(raw, where, _TURN_KEYS)
-    return Turn(
-        reply=parse_reply(turn, where),
-        heard=typed(turn.get("heard", "hello robot"), str, f"{where}.heard"),
-        stall_after_ms=optional_int(turn, "stall_after_ms", where),
-        drop_after_ms=optional_int(turn, "drop_after_ms", where),
-        close_after_ms=optional_int(turn, "close_after_ms", where),
-        cancel_after_ms=optional_int(turn, "cancel_after_ms", where),
-    )
+# Turn keys that set a fault field of `Turn` (milliseconds or none):
+_TURN_FAULTS = ("stall_after_ms", "drop_after_ms", "close_after_ms", "cancel_after_ms")
 
 
 def script_from_mapping(raw: object) -> Script:
-    script = check_script_keys(raw, _SCRIPT_KEYS)
-    if script is None:
-        return Script()
-    values: dict[str, object] = {
-        key: None if script[key] is None else typed(script[key], kind, f"script.{key}")
-        for key, kind in _SCALARS.items()
-        if key in script
-    }
-    if "default_reply" in script:
-        values["default_reply"] = parse_say(script["default_reply"], "script.default_reply")
-    try:
-        return Script(
-            turns=tuple(_turn(turn, f"script.turns[{i}]") for i, turn in enumerate(turn_list(script))),
-            rejected_api_keys=strings(script, "rejected_api_keys"),
-            known_models=strings(script, "known_models"),
-            **values,  # type: ignore[arg-type]  # each value checked against its field's type above
-        )
-    except ScriptError:
-        raise
-    except (TypeError, ValueError) as error:
-        raise ScriptError(f"script: {error}") from error
+    return parse_script(raw, script=Script, turn=Turn, scalars=_SCALARS, turn_faults=_TURN_FAULTS)
 
 
 def load_script(path: Path) -> Script:

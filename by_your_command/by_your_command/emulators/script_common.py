@@ -1,6 +1,6 @@
 """What both emulators' scripts share: the replies a scripted turn can give, and the strict YAML
-parsing of the parts that are the same for every vendor (replies, lists of strings, typed scalars).
-Each vendor's module keeps its own `Turn` (its faults) and `Script` (its limits)."""
+parsing of a script (`parse_script`). Each vendor's module keeps its own `Turn` (its faults) and
+`Script` (its limits) and names the keys that fill them."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ import yaml
 
 Modality = Literal["auto", "audio", "text"]
 T = TypeVar("T")
+ScriptT = TypeVar("ScriptT")
+TurnT = TypeVar("TurnT")
 
 
 @dataclass(frozen=True)
@@ -135,6 +137,52 @@ def check_script_keys(raw: object, known: frozenset[str]) -> Mapping[str, object
     if unknown:
         raise ScriptError(f"script: unknown key(s) {sorted(unknown)}; known: {sorted(known)}")
     return raw
+
+
+def parse_script(
+    raw: object,
+    *,
+    script: Callable[..., ScriptT],
+    turn: Callable[..., TurnT],
+    scalars: Mapping[str, type],
+    turn_faults: tuple[str, ...],
+) -> ScriptT:
+    """A vendor's `script(turns=..., default_reply=..., rejected_api_keys=..., known_models=...,
+    **scalars)` from the top-level mapping; each turn is `turn(reply=..., heard=..., **faults)`, a
+    fault being an optional integer (milliseconds). Unknown keys and wrong types are errors."""
+    mapping = check_script_keys(
+        raw, frozenset({"turns", "default_reply", "rejected_api_keys", "known_models", *scalars})
+    )
+    if mapping is None:
+        return script()
+    values: dict[str, object] = {
+        key: None if mapping[key] is None else typed(mapping[key], kind, f"script.{key}")
+        for key, kind in scalars.items()
+        if key in mapping
+    }
+    if "default_reply" in mapping:
+        values["default_reply"] = parse_say(mapping["default_reply"], "script.default_reply")
+    turn_keys = TURN_KEYS | set(turn_faults)
+
+    def parse_turn(raw_turn: object, where: str) -> TurnT:
+        fields = check_turn_keys(raw_turn, where, turn_keys)
+        return turn(
+            reply=parse_reply(fields, where),
+            heard=typed(fields.get("heard", "hello robot"), str, f"{where}.heard"),
+            **{key: optional_int(fields, key, where) for key in turn_faults},
+        )
+
+    try:
+        return script(
+            turns=tuple(parse_turn(item, f"script.turns[{i}]") for i, item in enumerate(turn_list(mapping))),
+            rejected_api_keys=strings(mapping, "rejected_api_keys"),
+            known_models=strings(mapping, "known_models"),
+            **values,
+        )
+    except ScriptError:
+        raise
+    except (TypeError, ValueError) as error:
+        raise ScriptError(f"script: {error}") from error
 
 
 def load_yaml_script(path: Path, from_mapping: Callable[[object], T]) -> T:

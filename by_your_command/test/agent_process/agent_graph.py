@@ -12,11 +12,11 @@ import shutil
 import signal
 import subprocess
 import threading
-from collections.abc import Callable, Coroutine, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import yaml
@@ -35,9 +35,9 @@ from by_your_command.emulators.gemini_script import Script as GeminiScript
 from by_your_command.emulators.gemini_wire import decode_blob, field_value
 from by_your_command.emulators.openai_realtime import OpenAIRealtimeEmulator, ReceivedEvent, start
 from by_your_command.emulators.openai_script import Script
+from by_your_command.emulators.threaded import ThreadedEmulator
 from by_your_command.nodes._qos import LATCHED, RELIABLE
 
-T = TypeVar("T")
 DEEP = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=2000, reliability=QoSReliabilityPolicy.RELIABLE)
 
 # Recognisable, so a test can prove it never reaches any log line.
@@ -66,34 +66,11 @@ def corpus_utterance(index: int = 0, session: str = "clean_en_us") -> np.ndarray
 # --- the emulator ------------------------------------------------------------------------------
 
 
-class _LoopThread:
-    """An event loop on a daemon thread; `_run` / `_read` hop onto it from the test's thread."""
-
-    def __init__(self) -> None:
-        self._loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
-        self._thread.start()
-
-    def _run(self, coroutine: Coroutine[Any, Any, T]) -> T:
-        return asyncio.run_coroutine_threadsafe(coroutine, self._loop).result(timeout=10)
-
-    def _read(self, read: Callable[[], T]) -> T:
-        async def on_loop() -> T:
-            return read()
-
-        return self._run(on_loop())
-
-    def _stop_loop(self) -> None:
-        self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(timeout=5)
-
-
-class EmulatorThread(_LoopThread):
+class EmulatorThread(ThreadedEmulator[OpenAIRealtimeEmulator]):
     """`emulators.openai_realtime` served from a private loop; every read hops onto that loop."""
 
     def __init__(self, script: Script) -> None:
-        super().__init__()
-        self.handle: OpenAIRealtimeEmulator = self._run(start(script=script))
+        super().__init__(start(script=script))
         self.url = self.handle.websocket_base_url
 
     def received(self) -> list[ReceivedEvent]:
@@ -116,28 +93,17 @@ class EmulatorThread(_LoopThread):
         total = sum(len(base64.b64decode(e["audio"])) for e in self.events("input_audio_buffer.append"))
         return total / 48.0
 
-    def stop(self) -> None:
-        try:
-            self._run(self.handle.stop())
-        finally:
-            self._stop_loop()
+
+def emulator(script: Script) -> EmulatorThread:
+    """The emulator, running; leaving its `with` block stops it."""
+    return EmulatorThread(script)
 
 
-@contextmanager
-def emulator(script: Script) -> Iterator[EmulatorThread]:
-    running = EmulatorThread(script)
-    try:
-        yield running
-    finally:
-        running.stop()
-
-
-class GeminiEmulatorThread(_LoopThread):
+class GeminiEmulatorThread(ThreadedEmulator[gemini_live.GeminiLiveEmulator]):
     """`emulators.gemini_live` (TLS, a certificate made at start) served from a private loop."""
 
     def __init__(self, script: GeminiScript) -> None:
-        super().__init__()
-        self.handle: gemini_live.GeminiLiveEmulator = self._run(gemini_live.start(script=script))
+        super().__init__(gemini_live.start(script=script))
         self.base_url = self.handle.base_url
         self.ca_file = str(self.handle.cert_file)
 
@@ -188,20 +154,10 @@ class GeminiEmulatorThread(_LoopThread):
     def audio_outside_activity_ms(self) -> int:
         return self._read(lambda: sum(s.audio_outside_activity_ms for s in self.handle.sessions.values()))
 
-    def stop(self) -> None:
-        try:
-            self._run(self.handle.stop())
-        finally:
-            self._stop_loop()
 
-
-@contextmanager
-def gemini_emulator(script: GeminiScript) -> Iterator[GeminiEmulatorThread]:
-    running = GeminiEmulatorThread(script)
-    try:
-        yield running
-    finally:
-        running.stop()
+def gemini_emulator(script: GeminiScript) -> GeminiEmulatorThread:
+    """The emulator, running; leaving its `with` block stops it."""
+    return GeminiEmulatorThread(script)
 
 
 # --- processes ---------------------------------------------------------------------------------

@@ -44,6 +44,7 @@ from by_your_command.agents.provider import (
     ToolSpec,
 )
 from by_your_command.agents.providers.event_stream import EventStream
+from by_your_command.agents.providers.failures import closing_on_failure, handshake_refusal
 from by_your_command.agents.providers.gemini_errors import (
     MISSING_KEY_MESSAGE,
     handshake_error,
@@ -55,6 +56,7 @@ from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
 
 log = logging.getLogger(__name__)
 
+_SESSION = "the Gemini Live session"  # as errors name it
 INPUT_RATE = 16_000  # Gemini Live's native input rate
 INPUT_MIME = f"audio/pcm;rate={INPUT_RATE}"
 DEFAULT_API_VERSION = "v1beta"  # the Live API's documented version (google-genai 3.x defaults to v1)
@@ -197,10 +199,7 @@ class GeminiLiveProvider:
                 f"Gemini closed the connection during setup ({refused.code} {reason})"
             ) from None
         except InvalidStatus as refused:
-            error = handshake_error(refused.response.status_code)
-            if error.fatal or error.retry_after_s is not None:
-                raise ProviderFailure(error) from None
-            raise ProviderClosed(error.message) from None
+            raise handshake_refusal(handshake_error(refused.response.status_code)) from None
         except ssl.SSLCertVerificationError as error:
             raise ProviderFailure(
                 ProviderError(
@@ -211,7 +210,7 @@ class GeminiLiveProvider:
             ) from None
         self.resumed = handle is not None
         if not self.resumed and setup.history:
-            async with self._closing_on_failure():
+            async with closing_on_failure(_SESSION):
                 await self._session.send_client_content(turns=_history(setup.history), turn_complete=False)
 
     def _live_config(self, setup: SessionSetup, handle: str | None) -> types.LiveConnectConfig:
@@ -261,12 +260,12 @@ class GeminiLiveProvider:
     # ---- input ------------------------------------------------------------------------------
     def _live(self) -> Any:
         if self._closed or self._session is None:
-            raise ProviderClosed("the Gemini Live session is closed")
+            raise ProviderClosed(f"{_SESSION} is closed")
         return self._session
 
     async def _start_activity(self) -> None:
         if not self._in_activity:
-            async with self._closing_on_failure():
+            async with closing_on_failure(_SESSION):
                 await self._live().send_realtime_input(activity_start=types.ActivityStart())
             self._in_activity = True
             self._turn_audio_bytes = 0
@@ -278,7 +277,7 @@ class GeminiLiveProvider:
             return
         session = self._live()
         await self._start_activity()  # never audio outside an activity: our VAD owns the turns
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await session.send_realtime_input(audio=types.Blob(data=pcm, mime_type=INPUT_MIME))
         self._turn_audio_bytes += len(pcm)
 
@@ -287,14 +286,14 @@ class GeminiLiveProvider:
         if not self._in_activity or not self._turn_audio_bytes:
             await self._events.put(ProviderError("empty_turn", "utterance without audio not sent"))
             return
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await session.send_realtime_input(activity_end=types.ActivityEnd())
         self._in_activity = False
 
     async def send_text(self, text: str) -> None:
         session = self._live()
         turn = types.Content(role="user", parts=[types.Part(text=text)])
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await session.send_client_content(turns=turn, turn_complete=True)
 
     async def send_image(self, jpeg: bytes) -> None:
@@ -302,7 +301,7 @@ class GeminiLiveProvider:
         if not jpeg.startswith(b"\xff\xd8") or len(jpeg) > MAX_IMAGE_BYTES:
             raise ValueError(f"not a JPEG of at most {MAX_IMAGE_BYTES} bytes ({len(jpeg)} bytes)")
         session = self._live()
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await session.send_realtime_input(video=types.Blob(data=jpeg, mime_type="image/jpeg"))
 
     async def send_tool_result(self, call_id: str, output: str) -> None:
@@ -318,7 +317,7 @@ class GeminiLiveProvider:
         response = types.FunctionResponse(
             id=call_id, name=self._translator.call_name(call_id) or "", response=result
         )
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await session.send_tool_response(function_responses=[response])
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
@@ -332,13 +331,6 @@ class GeminiLiveProvider:
         if self._in_activity:  # an unfinished turn cannot be cut by another activityStart
             return
         await self._start_activity()
-
-    @contextlib.asynccontextmanager
-    async def _closing_on_failure(self) -> AsyncIterator[None]:
-        try:
-            yield
-        except ConnectionClosed as closed:
-            raise ProviderClosed(f"the Gemini Live session closed: {closed}") from None
 
     # ---- output -----------------------------------------------------------------------------
     def events(self) -> AsyncIterator[ProviderEvent]:

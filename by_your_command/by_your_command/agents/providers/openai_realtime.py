@@ -43,11 +43,13 @@ from by_your_command.agents.provider import (
     ToolSpec,
 )
 from by_your_command.agents.providers.event_stream import EventStream
+from by_your_command.agents.providers.failures import closing_on_failure, handshake_refusal
 from by_your_command.agents.providers.openai_errors import handshake_error, provider_error
 from by_your_command.agents.providers.openai_events import BYTES_PER_MS, SAMPLE_RATE, EventTranslator
 
 log = logging.getLogger(__name__)
 
+_SESSION = "the OpenAI Realtime session"  # as errors name it
 MIN_COMMIT_MS = 100  # the server refuses shorter commits (input_audio_buffer_commit_empty)
 MAX_SESSION_S = 3600.0  # GA sessions end after 60 minutes (session_expired)
 MAX_IMAGE_BYTES = 10 * 1024 * 1024  # an event carries at most 15 MiB, base64 inflates by 4/3
@@ -130,9 +132,7 @@ class OpenAIRealtimeProvider:
         except InvalidStatus as refused:
             response = refused.response
             error = handshake_error(response.status_code, response.headers.get("Retry-After"))
-            if error.fatal or error.retry_after_s is not None:
-                raise ProviderFailure(error) from None
-            raise ProviderClosed(error.message) from None
+            raise handshake_refusal(error) from None
         self._connection = connection
         try:
             await self._configure(connection, setup)
@@ -233,7 +233,7 @@ class OpenAIRealtimeProvider:
     # ---- input ------------------------------------------------------------------------------
     def _live(self) -> AsyncRealtimeConnection:
         if self._closed or self._connection is None:
-            raise ProviderClosed("the OpenAI Realtime session is closed")
+            raise ProviderClosed(f"{_SESSION} is closed")
         return self._connection
 
     async def send_audio(self, pcm: bytes) -> None:
@@ -242,7 +242,7 @@ class OpenAIRealtimeProvider:
         if not pcm:
             return
         connection = self._live()
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await connection.input_audio_buffer.append(audio=base64.b64encode(pcm).decode("ascii"))
         self._buffered_bytes += len(pcm)
 
@@ -251,7 +251,7 @@ class OpenAIRealtimeProvider:
         buffered_ms = self._buffered_bytes // BYTES_PER_MS
         if buffered_ms < MIN_COMMIT_MS:
             # The server would refuse the commit and then answer nothing in particular: say so instead.
-            async with self._closing_on_failure():
+            async with closing_on_failure(_SESSION):
                 if self._buffered_bytes:
                     await connection.input_audio_buffer.clear()
             self._buffered_bytes = 0
@@ -263,14 +263,14 @@ class OpenAIRealtimeProvider:
                 )
             )
             return
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await connection.input_audio_buffer.commit()
         self._buffered_bytes = 0
         await self._request_reply()
 
     async def send_text(self, text: str) -> None:
         connection = self._live()
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await connection.conversation.item.create(
                 item={"type": "message", "role": "user", "content": [{"type": "input_text", "text": text}]}
             )
@@ -282,7 +282,7 @@ class OpenAIRealtimeProvider:
         connection = self._live()
         item_id = f"img_{uuid.uuid4().hex[:24]}"  # our own id, so the frame can be deleted later
         url = "data:image/jpeg;base64," + base64.b64encode(jpeg).decode("ascii")
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await connection.conversation.item.create(
                 item={
                     "id": item_id,
@@ -299,7 +299,7 @@ class OpenAIRealtimeProvider:
 
     async def send_tool_result(self, call_id: str, output: str) -> None:
         connection = self._live()
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await connection.conversation.item.create(
                 item={"type": "function_call_output", "call_id": call_id, "output": output}
             )
@@ -307,7 +307,7 @@ class OpenAIRealtimeProvider:
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         connection = self._live()
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             # Always sent: the reply may have ended on the server already, and the resulting
             # response_cancel_not_active is harmless (dropped by the translator). No id: cancel
             # whatever runs (a reply that has not said anything yet has no id the runtime knows).
@@ -334,15 +334,8 @@ class OpenAIRealtimeProvider:
             return
         self._reply_requested = True
         self._create_event_id = f"evt_create_{uuid.uuid4().hex[:16]}"  # errors name the event they refuse
-        async with self._closing_on_failure():
+        async with closing_on_failure(_SESSION):
             await self._live().response.create(event_id=self._create_event_id)
-
-    @contextlib.asynccontextmanager
-    async def _closing_on_failure(self) -> AsyncIterator[None]:
-        try:
-            yield
-        except ConnectionClosed as closed:
-            raise ProviderClosed(f"the OpenAI Realtime session closed: {closed}") from None
 
     # ---- output -----------------------------------------------------------------------------
     def events(self) -> AsyncIterator[ProviderEvent]:
