@@ -51,6 +51,7 @@ RATE = 16000
 # pause_timeout × rate); the long pause at the end of a round closes it and the next voice reopens.
 SHORT_GAP_S = 7.0
 LONG_PAUSE_S = 16.0
+AUDIO_BLOCK = 512  # samples per AudioChunk of the file source (its default chunk_samples)
 SCRIPT = {"pace": 1.0, "ms_per_char": 40, "default_reply": {"say": "Okay, noted."}}
 
 
@@ -252,7 +253,16 @@ def report(
         cpu = entry.cpu_percent()
         last = len(entry.rss_mb) - 1
         quarters = [round(entry.rss_mb[last * q // 4], 1) for q in range(5)]  # growth, or a plateau?
-        emit("rss_slope", slope, "MB/h", process=name, rss_quarters_mb=quarters)
+        # Per block of the audio stream (512 samples), comparable with bench_memory.py's figure.
+        per_block = slope * 2**20 / (RATE / AUDIO_BLOCK * args.rate * 3600)
+        emit(
+            "rss_slope",
+            slope,
+            "MB/h",
+            process=name,
+            rss_quarters_mb=quarters,
+            bytes_per_audio_block=round(per_block) if np.isfinite(per_block) else None,
+        )
         emit("cpu", cpu, "% of one core", process=name)
         print(f"{name:34} {entry.rss_mb[half]:10.1f} {entry.rss_mb[-1]:10.1f} {slope:13.2f} {cpu:6.1f}")
 

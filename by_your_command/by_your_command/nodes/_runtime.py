@@ -50,13 +50,35 @@ class _StopRequest:
         self.event.set()
 
 
+class _StopFuture(Future):
+    """The future the executor spins until, keeping one wake-up callback instead of millions.
+
+    rclpy's executors (Jazzy's rclpy 7.1.6 included; upstream fix: ros2/rclpy#1374) add a new
+    `lambda x: self.wake()` to this future on every spin_once_until_future_complete, i.e. once per
+    callback run, and hold them all until it completes: ~250 bytes per message, 110 MB an hour for
+    an audio node at 4x real time (found by bench/soak.py; bench/bench_memory.py measures it). One
+    wake-up is all it needs: they are all the same executor's wake(). Once done, a late addition is
+    passed on (rclpy then calls it at once), so nothing waits for a wake-up that already happened.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._has_wake_up = False
+
+    def add_done_callback(self, callback: Callable[[Future], None]) -> None:
+        if self._has_wake_up and not self.done():
+            return
+        self._has_wake_up = True
+        super().add_done_callback(callback)
+
+
 class _Spinner:
     """Spins the executor in a thread until told to stop; reports an escaping exception."""
 
     def __init__(self, executor: Executor, stop: _StopRequest) -> None:
         self._executor = executor
         self._stop = stop
-        self._done: Future = Future()
+        self._done: Future = _StopFuture()
         self._thread = threading.Thread(target=self._run, name="executor", daemon=True)
 
     def start(self) -> None:
