@@ -19,6 +19,7 @@ from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
 from by_your_command.nodes._audio_msgs import int16_field, pcm_of
+from by_your_command.nodes._delivery import DeliveryCheck
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
 from by_your_command.vad.attention import Attention, AttentionState, PhraseCommand, PhraseMatcher
@@ -54,6 +55,7 @@ class SileroVadNode(Node):
         )
         self.activity_pub = self.create_publisher(Bool, "voice_activity", RELIABLE)
         self.voice_pub = self.create_publisher(AudioDataUtterance, "prompt_voice", RELIABLE)
+        self.delivery = DeliveryCheck(self.voice_pub, self.config.delivery_confirm_s)
         self.state_pub = self.create_publisher(String, "attention_state", LATCHED)
         self.create_subscription(AudioChunk, self.config.input_topic, self._on_audio, AUDIO_IN)
         self.create_subscription(Bool, "wake_cmd", self._on_wake_cmd, RELIABLE)
@@ -63,7 +65,7 @@ class SileroVadNode(Node):
         self.blocks_rejected = 0  # malformed
         self.publish_failures = 0
         self.utterances = 0
-        self.unheard_utterances = 0  # published while nothing subscribed to prompt_voice: lost
+        self.unheard_utterances = 0  # published to no subscriber, or none acknowledged it: lost
         self._reported: tuple[int, ...] = ()
         self._last_audio = time.monotonic()
         self._last_report = time.monotonic()
@@ -214,19 +216,25 @@ class SileroVadNode(Node):
                 elif isinstance(event, UtteranceChunk):
                     # Judged at the end: DDS's subscriber count lags a new match by a moment (a
                     # chunk lost before it is the agent's to report, as a missing chunk).
-                    if event.is_utterance_end and self.voice_pub.get_subscription_count() == 0:
-                        self._unheard(event)
+                    unheard = event.is_utterance_end and self.voice_pub.get_subscription_count() == 0
+                    if unheard:
+                        self._unheard(
+                            event.utterance_id,
+                            "nothing subscribes to prompt_voice (no bridge or agent listening)",
+                        )
                     self.voice_pub.publish(self._utterance_msg(event))
+                    confirm = event.is_utterance_end and not unheard
+                    self.delivery.published(event.utterance_id if confirm else None)
             except Exception as error:  # rclpy raises RCLError under overload: count, never crash
                 self.publish_failures += 1
                 self.get_logger().error(f"publish failed ({self.publish_failures} so far): {error}")
 
-    def _unheard(self, chunk: UtteranceChunk) -> None:
-        # DDS drops a message nobody subscribes to without a word: say it here, where it is known.
+    def _unheard(self, utterance_id: int, why: str, certain: bool = True) -> None:
+        # DDS drops what nobody (alive) receives without a word: say it here, where it is known.
         self.unheard_utterances += 1
         self.get_logger().warning(
-            f"utterance {chunk.utterance_id} is lost: nothing subscribes to prompt_voice (no bridge or "
-            f"agent listening; {self.unheard_utterances} lost so far)"
+            f"utterance {utterance_id} {'is' if certain else 'may be'} lost: {why}; "
+            f"{self.unheard_utterances} unheard so far"
         )
 
     @staticmethod
@@ -242,6 +250,12 @@ class SileroVadNode(Node):
         return msg
 
     def _housekeeping(self) -> None:
+        window = self.config.delivery_confirm_s
+        for utterance_id in self.delivery.unacknowledged():
+            # Lost if the subscriber died before receiving it; received, if it died after that but
+            # before its acknowledgement was due: the VAD cannot tell which.
+            why = f"prompt_voice's subscribers did not acknowledge it within {window:g} s (a dead bridge?)"
+            self._unheard(utterance_id, why, certain=False)
         now = time.monotonic()
         if self.detector.streaming and now - self._last_audio > self.config.audio_timeout_ms / 1000:
             # Audio stopped (mic unplugged, echo gate shut): whatever comes next is a new stream.

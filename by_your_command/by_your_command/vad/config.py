@@ -45,6 +45,14 @@ class VadConfig:
             "stream: the open utterance ends, pre-roll and model state are dropped"
         },
     )
+    delivery_confirm_s: float = field(
+        default=6.0,
+        metadata={
+            "help": "an utterance no prompt_voice subscriber acknowledged this long after the last publish "
+            "is reported lost (a bridge killed without closing stays matched for ~20 s); acknowledgements "
+            "come with DDS heartbeats, up to 3 s apart with Fast DDS: keep it above that"
+        },
+    )
     start_awake: bool = field(default=True, metadata={"help": "listen from startup (else wait for wake)"})
     wake_phrases: list[str] = field(
         default_factory=lambda: list(DEFAULT_WAKE_PHRASES),
@@ -85,6 +93,8 @@ class VadConfig:
             raise ValueError(f"utterance_chunk_frames must be >= 0, got {self.utterance_chunk_frames}")
         if self.audio_timeout_ms <= 0:
             raise ValueError(f"audio_timeout_ms must be > 0, got {self.audio_timeout_ms}")
+        if not 0.0 < self.delivery_confirm_s <= 3600.0:  # also refuses NaN
+            raise ValueError(f"delivery_confirm_s must be in (0, 3600], got {self.delivery_confirm_s}")
         if self.gap_tolerance_ms <= 0:
             raise ValueError(f"gap_tolerance_ms must be > 0, got {self.gap_tolerance_ms}")
         PhraseMatcher(self.wake_phrases, self.sleep_phrases, self.robot_name)  # raises on a bad phrase

@@ -143,6 +143,8 @@ def test_max_buffer_frames_bounds_whole_utterance_mode() -> None:
         {"utterance_chunk_frames": -2},
         {"sample_rate": 8000},
         {"gap_tolerance_ms": 0},
+        {"delivery_confirm_s": 0.0},
+        {"delivery_confirm_s": float("nan")},
     ],
 )
 def test_bad_configuration_is_refused_with_a_message(kwargs: dict[str, float]) -> None:

@@ -3,6 +3,8 @@ reported lost by the VAD node: DDS itself drops it without a word."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -63,3 +65,66 @@ def test_an_utterance_nobody_subscribes_to_is_reported_lost(ros_namespace: str) 
         _play(probe, audio, np.concatenate([np.zeros(16000, np.int16), utterance]))
         spin_until(probe, check, lambda: any(c.is_utterance_end for c in chunks), timeout=30, what="delivery")
         assert len(warnings) == 1, warnings
+
+
+# A prompt_voice subscriber in its own process, writing the id of each utterance it got whole.
+LISTENER = """
+import sys, rclpy
+from by_your_command_msgs.msg import AudioDataUtterance
+from by_your_command.nodes._qos import RELIABLE
+rclpy.init()
+node = rclpy.create_node("listener", namespace=sys.argv[1])
+def heard(chunk):
+    if chunk.is_utterance_end:
+        with open(sys.argv[2], "a") as out:
+            out.write(f"{chunk.utterance_id}\\n")
+node.create_subscription(AudioDataUtterance, "prompt_voice", heard, RELIABLE)
+rclpy.spin(node)
+"""
+
+
+@pytest.mark.ros
+def test_an_utterance_a_killed_subscriber_never_acknowledged_is_reported_lost(
+    ros_namespace: str, tmp_path: Path
+) -> None:
+    # Killed with SIGKILL, the subscriber stays matched until its DDS lease expires (~20 s): the
+    # subscriber count cannot tell. Its missing acknowledgement does.
+    speech = next(s for s in sessions() if s.name == "clean_en_us").audio()[8000 : 16000 * 3]
+    utterance = np.concatenate([speech, np.zeros(16000, np.int16)])
+    logger = f"{ros_namespace.strip('/')}.silero_vad_node"
+    received = tmp_path / "received.txt"
+    with (
+        probe_node(ros_namespace) as probe,
+        running_process(node("silero_vad_node", ros_namespace, "input_topic:=audio")) as vad,
+        running_process([sys.executable, "-c", LISTENER, ros_namespace, str(received)]) as listener,
+    ):
+        check = alive(vad, listener)
+        warnings: list[str] = []
+
+        def on_log(line: Log) -> None:
+            if line.name == logger and line.level == WARN:
+                warnings.append(line.msg)
+
+        probe.node.create_subscription(Log, "/rosout", on_log, ROSOUT)
+        audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
+        spin_until(probe, check, audio.get_subscription_count, timeout=30, what="the VAD node")
+
+        def heard() -> list[str]:
+            return received.read_text().split() if received.exists() else []
+
+        # Delivered while the listener lives (silence first: the VAD may match it a moment later).
+        while not heard():
+            _play(probe, audio, np.concatenate([np.zeros(16000, np.int16), utterance]))
+            spin_until(probe, check, lambda: heard() or warnings, timeout=30, what="delivery or report")
+            warnings.clear()  # an utterance spoken before the match is reported unheard: not this test
+        listener.kill()
+        listener.wait()
+        check = alive(vad)
+        _play(probe, audio, utterance)  # the dead listener is still matched: DDS drops this silently
+
+        def lost_unheard() -> set[str]:
+            """Reported unacknowledged and never received (the utterance before the kill may be
+            reported too: killed before its acknowledgement was due)."""
+            return {w.split()[1] for w in warnings if "did not acknowledge" in w} - set(heard())
+
+        spin_until(probe, check, lost_unheard, timeout=60, what="the unacknowledged utterance reported lost")
