@@ -6,7 +6,7 @@ node does its real per-block work. After a warm-up, each process's CPU time is r
 the measuring window. Same-run baseline: an empty rclpy node spinning (the floor any ROS process
 costs here), measured over the same window.
 
-usage: scripts/run.sh python bench/bench_idle_cpu.py [--warmup-s 20] [--measure-s 30]
+usage: scripts/run.sh python bench/bench_idle_cpu.py [--warmup-s 20] [--measure-s 30] [--set NODE.PARAM=V]
 """
 
 from __future__ import annotations
@@ -69,6 +69,8 @@ async def measure(args: argparse.Namespace, workdir: Path) -> int:
     argv += ["--namespace", f"bench_{os.getpid()}"]
     for key, value in sets.items():
         argv += ["--set", f"{key}={value}"]
+    for extra in args.set:  # e.g. file_audio_publisher.chunk_samples=1024: a configuration to compare
+        argv += ["--set", extra]
     graph = ChildGraph(argv, workdir / "graph.log")
     baseline = await asyncio.create_subprocess_exec(sys.executable, "-c", EMPTY_NODE)
     series: dict[int, Series] = {}
@@ -97,10 +99,11 @@ async def measure(args: argparse.Namespace, workdir: Path) -> int:
     for pid, entry in sorted(series.items(), key=lambda item: names.get(item[0], "")):
         cpu = entry.cpu_percent(since=args.warmup_s)
         name = names.get(pid, f"other[{pid}]")
+        ratio = round(cpu / floor, 1) if floor > 0 else None  # an empty node can read 0 ticks
         if pid != baseline.pid:
             total += cpu
-            emit("process_cpu", cpu, "% of one core", process=name, ratio_to_empty_node=round(cpu / floor, 1))
-        print(f"{name:24} {cpu:18.2f} {cpu / floor:13.1f}")
+            emit("process_cpu", cpu, "% of one core", process=name, ratio_to_empty_node=ratio)
+        print(f"{name:24} {cpu:18.2f} {'—' if ratio is None else ratio:>13}")
     emit("graph_cpu", total, "% of one core", goal=GOAL_PERCENT, met=total <= GOAL_PERCENT)
     emit("empty_node_cpu", floor, "% of one core")
     print(f"\nwhole offline graph idle: {total:.2f} % of one core (goal ≤ {GOAL_PERCENT} %)")
@@ -111,6 +114,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--warmup-s", type=float, default=20.0)
     parser.add_argument("--measure-s", type=float, default=30.0)
+    parser.add_argument("--set", action="append", default=[], help="NODE.PARAM=VALUE passed to byc up")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="byc-idle-") as workdir:
         return asyncio.run(measure(args, Path(workdir)))

@@ -106,7 +106,10 @@ class CaptureConfig:
     device: str = field(default="", metadata={"help": "input device index or name substring; '' = default"})
     sample_rate: int = field(default=16000, metadata={"help": "capture rate (Hz)"})
     channels: int = field(default=1, metadata={"help": "channels to open; published mixed to mono"})
-    chunk: int = field(default=512, metadata={"help": "samples per published chunk (512 = 32 ms at 16 kHz)"})
+    chunk: int = field(
+        default=1024,
+        metadata={"help": "samples per published chunk (1024 = 64 ms at 16 kHz: half the messages of 512)"},
+    )
     queue_chunks: int = field(default=64, metadata={"help": "chunks buffered between callback and node"})
     dead_input_s: float = field(default=3.0, metadata={"help": "warn after this long of exact zeros"})
     list_devices: bool = field(default=False, metadata={"help": "log the device list at startup"})

@@ -15,7 +15,9 @@ class FileSourceConfig:
         default_factory=list, metadata={"help": "WAV files (16-bit PCM, any rate/channels), played in order"}
     )
     sample_rate: int = field(default=16000, metadata={"help": "rate of the published audio (Hz)"})
-    chunk_samples: int = field(default=512, metadata={"help": "samples per published AudioChunk"})
+    chunk_samples: int = field(
+        default=1024, metadata={"help": "samples per published AudioChunk (as capture)"}
+    )
     rate_factor: float = field(default=1.0, metadata={"help": "1.0 = real time, 4.0 = four times faster"})
     loop: bool = field(default=False, metadata={"help": "start again from the first file at the end"})
     min_subscribers: int = field(

@@ -163,8 +163,9 @@ def _drafts(chosen: Profile, options: GraphOptions) -> list[_Draft]:
         ]
     if chosen.vision:
         drafts.append(_Draft("frame_forwarder", "frame_forwarder"))
-    # What listens to `audio`: a file source waits for all of it before playing.
-    listeners = sum(1 for d in drafts if d.name in ("echo_suppressor", "clap_detector_node", "mic_recorder"))
+    # What listens to `audio`: a file source waits for all of it before playing. Not the clap
+    # detector: it listens only while the robot is not awake.
+    listeners = sum(1 for d in drafts if d.name in ("echo_suppressor", "mic_recorder"))
     if options.source_file:
         source = {
             "files": [options.source_file],

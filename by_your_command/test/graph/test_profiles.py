@@ -69,7 +69,7 @@ def test_microphone_and_recorders(config_dir: Path, tmp_path: Path) -> None:
         ),
     )
     capture = graph.node("audio_capture")
-    assert capture.param_sources == ("audio_io.yaml",) and capture.parameters["chunk"] == 512
+    assert capture.param_sources == ("audio_io.yaml",) and capture.parameters["chunk"] == 1024
     assert graph.node("voice_recorder").parameters["output_dir"] == f"{tmp_path}/utterances"
     replies = graph.node("reply_recorder")
     assert replies.parameters == {"input_mode": "stream", "output_dir": f"{tmp_path}/replies"}

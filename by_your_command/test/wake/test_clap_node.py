@@ -7,11 +7,11 @@ import pytest
 from by_your_command_msgs.msg import AudioChunk
 from byc_testing import python_module, running_process, wait_for
 from ros_probe import probe_node
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 from wake.clap_corpus import TIMBRES, simple_scene
 
 from by_your_command.nodes._audio_msgs import make_audio_chunk
-from by_your_command.nodes._qos import RELIABLE, STREAM
+from by_your_command.nodes._qos import LATCHED, RELIABLE, STREAM
 
 
 @pytest.mark.ros
@@ -83,3 +83,33 @@ def test_enabled_can_change_at_run_time_and_thresholds_cannot(ros_namespace: str
         assert set_one(
             Parameter("enabled", value=True)
         )  # back on: a new stream, nothing paired across the gap
+
+
+@pytest.mark.ros
+def test_it_stops_listening_while_the_robot_is_awake_and_claps_wake_it_once_asleep(
+    ros_namespace: str,
+) -> None:
+    command = python_module(
+        "by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={ros_namespace}"
+    )
+    audio_pcm = simple_scene([1.5, 2.0], seconds=4.0, timbre=TIMBRES[0], peak=0.1).pcm
+    with probe_node(ros_namespace) as probe, running_process(command) as node:
+        wakes = probe.listen(Bool, "wake_cmd", RELIABLE)
+        audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
+        attention = probe.node.create_publisher(String, "attention_state", LATCHED)
+
+        def step(condition: object) -> object:
+            assert node.poll() is None, node.stdout.read() if node.stdout else "node died"
+            probe.spin(0.01)
+            return condition
+
+        wait_for(lambda: step(audio.get_subscription_count() == 1), timeout=30, what="listening at start")
+        attention.publish(String(data="awake"))  # the VAD's latched state
+        wait_for(lambda: step(audio.get_subscription_count() == 0), timeout=30, what="not listening")
+        attention.publish(String(data="asleep"))
+        wait_for(lambda: step(audio.get_subscription_count() == 1), timeout=30, what="listening again")
+        for offset in range(0, len(audio_pcm), 1024):
+            audio.publish(make_audio_chunk(audio_pcm[offset : offset + 1024], 16000, 1))
+            probe.spin(0.02)  # paced (~3x real time) so the best-effort queue never overflows
+        wait_for(lambda: step(wakes), timeout=10, what="wake_cmd")
+        assert [w.data for w in wakes] == [True]
