@@ -14,11 +14,13 @@ from by_your_command.nodes._audio_msgs import make_audio_chunk
 from by_your_command.nodes._qos import LATCHED, RELIABLE, STREAM
 
 
+def clap_node(namespace: str) -> list[str]:
+    return python_module("by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={namespace}")
+
+
 @pytest.mark.ros
 def test_double_clap_publishes_wake_cmd(ros_namespace: str) -> None:
-    command = python_module(
-        "by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={ros_namespace}"
-    )
+    command = clap_node(ros_namespace)
     # One second of room noise first: the node may match our publisher a little after we match it.
     # A dark clap (cupped hands): the old detector's fixed zero-crossing threshold missed those.
     audio_pcm = simple_scene([1.5, 2.0], seconds=4.0, timbre=TIMBRES[2], peak=0.1).pcm
@@ -60,9 +62,7 @@ def test_enabled_can_change_at_run_time_and_thresholds_cannot(ros_namespace: str
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
 
-    command = python_module(
-        "by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={ros_namespace}"
-    )
+    command = clap_node(ros_namespace)
     with probe_node(ros_namespace) as probe, running_process(command) as node:
         client = AsyncParameterClient(probe.node, f"{ros_namespace}/clap_detector_node")
 
@@ -89,9 +89,7 @@ def test_enabled_can_change_at_run_time_and_thresholds_cannot(ros_namespace: str
 def test_it_stops_listening_while_the_robot_is_awake_and_claps_wake_it_once_asleep(
     ros_namespace: str,
 ) -> None:
-    command = python_module(
-        "by_your_command.nodes.clap_detector_node", "--ros-args", "-r", f"__ns:={ros_namespace}"
-    )
+    command = clap_node(ros_namespace)
     audio_pcm = simple_scene([1.5, 2.0], seconds=4.0, timbre=TIMBRES[0], peak=0.1).pcm
     with probe_node(ros_namespace) as probe, running_process(command) as node:
         wakes = probe.listen(Bool, "wake_cmd", RELIABLE)
