@@ -84,6 +84,10 @@ class ChunkSchedule:
     def samples_sent(self) -> int:
         return self._samples_sent
 
+    def next_due_s(self) -> float:
+        """When (seconds since start) the next chunk is due."""
+        return self._samples_sent / (self._config.sample_rate * self._config.rate_factor)
+
     def due(self, elapsed_s: float, max_chunks: int = 1000) -> list[ScheduledChunk]:
         rate = self._config.sample_rate * self._config.rate_factor
         out: list[ScheduledChunk] = []

@@ -43,6 +43,7 @@ def test_schedule_paces_chunks_and_catches_up() -> None:
     first = schedule.due(0.0)
     assert [len(c.samples) for c in first] == [512]  # the first chunk is due at once
     assert schedule.due(0.01) == []  # the next is due at 512 / 32000 s = 16 ms
+    assert schedule.next_due_s() == 512 / 32000  # what the pacing thread sleeps until
     rest = schedule.due(10.0)  # after a stall everything due comes out in order
     assert [(c.stream_id, len(c.samples)) for c in rest] == [("a", 488), ("b", 512), ("b", 88)]
     assert [c.offset_s for c in first + rest] == [0.0, 512 / 16000, 1000 / 16000, 1512 / 16000]

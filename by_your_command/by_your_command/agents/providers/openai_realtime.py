@@ -348,7 +348,7 @@ class OpenAIRealtimeProvider:
                 try:
                     event = connection.parse_event(await connection.recv_bytes())
                 except ConnectionClosed as closed:
-                    why = f"connection closed: {closed}"  # the close code and the server's reason
+                    why = f"connection lost: {closed}"  # with the close code and the server's reason
                     break
                 except ValueError as error:  # not JSON / not an event: report, keep the session
                     await self._events.put(

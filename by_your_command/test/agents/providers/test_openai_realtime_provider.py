@@ -307,7 +307,7 @@ def test_connection_dropped_mid_reply_ends_the_reply_and_the_events() -> None:
         assert any(isinstance(e, AssistantAudio) for e in got)
         done = got[-1]
         assert isinstance(done, ResponseDone) and done.status is ResponseStatus.FAILED
-        assert done.reason.startswith("connection closed: ") and "no close frame" in done.reason
+        assert done.reason.startswith("connection lost: ") and "no close frame" in done.reason
         with pytest.raises(ProviderClosed):
             await provider.send_audio(speech(20))
 
