@@ -1,8 +1,10 @@
 """Offline recognition accuracy: commands recognized exactly, chat never turned into a command.
 
 Corpus, synthesized now with espeak-ng in voices the recognizer was NOT tuned on (tuning used
-en-us and en-gb): every command, phrase and question of the vocabulary in up to two spoken forms
-(each form said by two of the held-out voices), and CHAT lines (small talk, questions, sentences
+other espeak voices and variants: en-us, en-gb, en-gb-scotland, en-gb-x-gbclan, en-gb-x-gbcwmd,
+en-us-nyc; variants m2-m5, f1, f2, f4, f5, klatt; other speeds and pitches): every command,
+phrase and question of the vocabulary in up to two spoken forms (each form said by two of the
+held-out voices), and CHAT lines (small talk, questions, sentences
 holding command words, command words in other sentences), each clean and with white noise at --snr
 dB. Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine with
 pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback without the

@@ -2,10 +2,12 @@
 nothing (rejected).
 
 The default search (`Search.MOONSHINE`) asks the Moonshine speech model (moonshine.py; its model
-ships in the moonshine-cpp wheel) how well each spoken form explains the utterance, and accepts
-its best form when a free transcription would have written almost exactly that form; otherwise it
-accepts the pocketsphinx grammar's form only if Moonshine finds that form nearly as likely as its
-own best. Without the model it falls back to pocketsphinx alone (`Search.VERIFIED`, below).
+ships in the moonshine-cpp wheel) how well each spoken form explains the noise-suppressed
+utterance (front_end.py), and accepts its best form when a free transcription would have written
+almost exactly that form, or nearly that form while ending where the model ends and clearly
+beating every other meaning; otherwise pocketsphinx is a second opinion (its grammar hearing the
+same meaning, or its verified form if Moonshine finds it near enough). Without the model it falls
+back to pocketsphinx alone (`Search.VERIFIED`, below).
 
 pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
 the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
@@ -28,12 +30,14 @@ import tempfile
 import threading
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
 from by_your_command.offline.filler_words import FILLER_WORDS
+from by_your_command.offline.front_end import FloatArray, NoiseSuppression, suppress_noise
 from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
 from by_your_command.offline.moonshine import (
     FormScore,
@@ -47,6 +51,7 @@ from by_your_command.offline.spoken import (
     SpokenVocabularyConfig,
     build_spoken_forms,
     pronounceable,
+    written_forms,
 )
 
 log = logging.getLogger(__name__)
@@ -85,12 +90,23 @@ class RecognizerConfig:
     spoken: SpokenVocabularyConfig = field(default_factory=SpokenVocabularyConfig)
     search: Search = Search.MOONSHINE
     moonshine: MoonshineConfig = field(default_factory=MoonshineConfig)
+    noise_suppression: NoiseSuppression = field(default_factory=NoiseSuppression)  # before Moonshine
     # Regret (moonshine.py): how far, in log probability summed over tokens, a form is from what
-    # Moonshine would have written freely. Moonshine's own best form is accepted up to
-    # accept_regret; otherwise the pocketsphinx-verified form (grammar and filler model agree) up to
-    # confirm_regret. Tuned on en-us/en-gb voices (docs/offline.md).
+    # Moonshine would have written freely; its end regret is the part paid for ending there (the
+    # model heard more words). Moonshine's best form is accepted
+    # - up to accept_regret;
+    # - up to near_regret when it ends where the model ends (end regret at most end_regret) and
+    #   beats every form of another meaning by `margin` (log probability);
+    # - up to agree_regret when it ends where the model ends and the pocketsphinx grammar heard
+    #   the same meaning (two different recognizers agree);
+    # otherwise the pocketsphinx-verified form (grammar and filler model agree) up to
+    # confirm_regret. Tuned on other espeak voices than the benchmark's (docs/offline.md).
     accept_regret: float = 2.0
-    confirm_regret: float = 12.0
+    near_regret: float = 4.0
+    end_regret: float = 0.25
+    margin: float = 2.0
+    agree_regret: float = 7.0
+    confirm_regret: float = 10.0
     garbage: GarbageWeights = field(default_factory=GarbageWeights)
     language_weight: float = 6.5  # pocketsphinx `lw`: how much the model counts against the acoustics
     filler_words: tuple[str, ...] = FILLER_WORDS
@@ -108,8 +124,10 @@ class RecognizerConfig:
             raise ValueError("need 0 < min_utterance_s < max_utterance_s")
         if self.language_weight <= 0:
             raise ValueError("language_weight must be positive")
-        if not 0.0 <= self.accept_regret <= self.confirm_regret:
-            raise ValueError("need 0 <= accept_regret <= confirm_regret")
+        if not 0.0 <= self.accept_regret <= min(self.near_regret, self.agree_regret, self.confirm_regret):
+            raise ValueError("need 0 <= accept_regret <= near_regret, agree_regret and confirm_regret")
+        if self.end_regret < 0 or self.margin < 0:
+            raise ValueError("end_regret and margin must not be negative")
         if self.dither_rms < 0 or self.noise_tail_rms < 0 or self.noise_tail_s < 0:
             raise ValueError("dither and noise tail must not be negative")
 
@@ -145,20 +163,29 @@ class OfflineRecognizer:
         # Imported here: the rest of the package works without the 38 MB wheel.
         import pocketsphinx  # type: ignore[import-untyped]
 
-        self._decoder = pocketsphinx.Decoder(lm=None, lw=self.config.language_weight, loglevel="FATAL")
-        known = self._decoder.lookup_word
-        self.forms: list[SpokenForm] = pronounceable(
-            build_spoken_forms(self.vocabulary, self.config.spoken), lambda word: known(word) is not None
-        )
+        pronunciations = _read_dictionary(pocketsphinx.Config()["dict"])
+        known = pronunciations.__contains__
+        named = build_spoken_forms(self.vocabulary, self.config.spoken)
+        self.forms: list[SpokenForm] = pronounceable(named, known)
+        self._written = [written_forms(a.words, b.words) for a, b in zip(named, self.forms, strict=True)]
         self._by_words = {form.words: form for form in self.forms}
-        missing = [word for word in self.config.filler_words if known(word) is None]
+        missing = [word for word in self.config.filler_words if not known(word)]
         if missing:
             raise ValueError(f"filler words not in the pronunciation dictionary: {missing}")
+        # The decoder gets a dictionary of only the words it can hear: with the shipped 126k-word
+        # dictionary, building the filler model's search took 0.6-6 s (most of the load time);
+        # with these few hundred words it takes milliseconds, and decodes the same.
+        needed = {word for form in self.forms for word in form.words.split()} | set(self.config.filler_words)
+        self._decoder = _decoder_with(
+            pocketsphinx,
+            "".join(line for word in sorted(needed) for line in pronunciations[word]),
+            self.config.language_weight,
+        )
         self.search = self.config.search  # what runs: MOONSHINE falls back to VERIFIED without it
         self._scorer: MoonshineScorer | None = None
         if self.search is Search.MOONSHINE:
             try:
-                self._scorer = MoonshineScorer([form.words for form in self.forms], self.config.moonshine)
+                self._scorer = MoonshineScorer(self._written, self.config.moonshine)
             except ModelUnavailableError as error:
                 log.warning("offline recognition without the Moonshine model (%s): pocketsphinx only", error)
                 self.search = Search.VERIFIED
@@ -220,35 +247,72 @@ class OfflineRecognizer:
         return Recognition(form.kind, form.words, form.canonical, confidence)
 
     def _moonshine(self, samples: Int16Array) -> Recognition:
-        """Moonshine's best form if it is nearly what Moonshine would write freely; else the
-        pocketsphinx-verified form (grammar and filler model agree) if Moonshine does not find it
-        far off. Confidence exp(-regret). pocketsphinx runs only when Moonshine alone is unsure."""
-        config = self.config
+        """Moonshine's best form if it is (nearly) what Moonshine would write freely, or if the
+        pocketsphinx grammar heard the same; else the pocketsphinx-verified form (grammar and
+        filler model agree) if Moonshine does not find it far off (RecognizerConfig). Confidence
+        exp(-regret). pocketsphinx runs only when Moonshine alone is unsure."""
         assert self._scorer is not None
         with self._lock:
-            scores = self._scorer.score(samples.astype(np.float32) / 32768.0)
+            analysis = self._scorer.analyse(self._moonshine_input(samples))
             self.stats.decoded += 1
-        if not scores:
-            return _rejected(Rejection.NOT_A_FORM)
-        best = scores[0]
-        heard = self.forms[best.index].words
-        chosen: FormScore | None = best if best.regret <= config.accept_regret else None
-        grammar = "-"
-        if chosen is None:
+        chosen = self._moonshine_choice(analysis.forms)
+        heard = f"heard {analysis.free.text!r}"
+        if chosen is None and analysis.forms:
+            best = analysis.forms[0]
             audio = self._prepared(samples)
             grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
             form = self._by_words.get(grammar)
-            if form is not None:
+            heard += f", pocketsphinx {grammar!r}"
+            if self._agrees(best, form):
+                chosen = best
+            elif form is not None:
                 check, _ = self._decode(audio, FILLER_SEARCH)
                 confirmed = self._by_words.get(check)
                 if confirmed is not None and confirmed.canonical == form.canonical:
-                    same = [s for s in scores if self.forms[s.index].canonical == form.canonical]
-                    if same and min(s.regret for s in same) <= config.confirm_regret:
+                    same = [s for s in analysis.forms if self.forms[s.index].canonical == form.canonical]
+                    if same and min(s.regret for s in same) <= self.config.confirm_regret:
                         chosen = min(same, key=lambda s: s.regret)
         if chosen is None:
-            return _rejected(Rejection.NOT_A_FORM, f"{grammar or '-'} / {heard}")
+            return _rejected(Rejection.NOT_A_FORM, heard)
         form = self.forms[chosen.index]
         return Recognition(form.kind, form.words, form.canonical, float(np.exp(-chosen.regret)))
+
+    def _moonshine_choice(self, forms: list[FormScore]) -> FormScore | None:
+        """Moonshine's best form when Moonshine alone is sure enough of it, else None."""
+        config = self.config
+        if not forms:
+            return None
+        best = forms[0]
+        if best.regret <= config.accept_regret:
+            return best
+        meaning = self._meaning(best)
+        rival = max((s.logprob for s in forms if self._meaning(s) != meaning), default=-np.inf)
+        if (
+            best.regret <= config.near_regret
+            and best.end_regret <= config.end_regret
+            and best.logprob - rival >= config.margin
+        ):
+            return best
+        return None
+
+    def _agrees(self, best: FormScore, grammar: SpokenForm | None) -> bool:
+        """Whether the pocketsphinx grammar's form means what Moonshine's best form means, and
+        that form is near enough and ends where the model ends."""
+        config = self.config
+        return (
+            grammar is not None
+            and (grammar.kind, grammar.canonical) == self._meaning(best)
+            and best.regret <= config.agree_regret
+            and best.end_regret <= config.end_regret
+        )
+
+    def _meaning(self, score: FormScore) -> tuple[RecognitionKind, str]:
+        form = self.forms[score.index]
+        return form.kind, form.canonical
+
+    def _moonshine_input(self, samples: Int16Array) -> FloatArray:
+        """Moonshine's input: float audio, noise suppressed (front_end.py)."""
+        return suppress_noise(samples.astype(np.float32) / 32768.0, self.config.noise_suppression)
 
     def _prepared(self, samples: Int16Array) -> bytes:
         config = self.config
@@ -271,6 +335,27 @@ class OfflineRecognizer:
                 return "", 0.0
             confidence = float(decoder.get_prob())
         return " ".join(str(hypothesis.hypstr).split()), min(1.0, max(0.0, confidence))
+
+
+def _read_dictionary(path: str) -> dict[str, list[str]]:
+    """The pronunciation dictionary's lines by word ("the" -> ["the DH AH", "the(2) DH IY"])."""
+    lines: dict[str, list[str]] = {}
+    with open(path, encoding="utf-8") as file:
+        for line in file:
+            if line.strip():
+                lines.setdefault(line.split(None, 1)[0].split("(", 1)[0], []).append(line.rstrip("\n") + "\n")
+    return lines
+
+
+def _decoder_with(pocketsphinx: Any, dictionary: str, language_weight: float) -> Any:
+    """A pocketsphinx decoder (the wheel's en-us model) with this dictionary text."""
+    handle, path = tempfile.mkstemp(suffix=".dict", prefix="byc-offline-")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as file:
+            file.write(dictionary)
+        return pocketsphinx.Decoder(lm=None, dict=path, lw=language_weight, loglevel="FATAL")
+    finally:
+        os.unlink(path)
 
 
 def _rms_dbfs(samples: Int16Array) -> float:

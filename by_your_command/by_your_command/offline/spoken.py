@@ -189,3 +189,43 @@ def _pronounceable_word(text: str, in_dictionary: Callable[[str], bool]) -> str:
         if in_dictionary(head) and in_dictionary(tail):
             return f"{head} {tail}"
     raise ValueError(f"cannot pronounce {text!r}: not in the dictionary and not two words that are")
+
+
+_DIGITS = {
+    "zero": "0", "one": "1", "two": "2", "three": "3", "four": "4", "five": "5",
+    "six": "6", "seven": "7", "eight": "8", "nine": "9", "ten": "10",
+}  # fmt: skip
+
+
+def written_forms(name_words: str, spoken_words: str) -> tuple[str, ...]:
+    """The ways a transcriber may write one spoken form, first the spoken words themselves.
+
+    `name_words` is the form as generated from the vocabulary ("bumper leftish", "tenhut"),
+    `spoken_words` as made pronounceable ("bumper left ish", "ten hut"). A transcriber writes
+    what it hears as ordinary text: a split name as one word, hyphenated or apart ("leftish",
+    "left-ish", "left ish"), and number words often as digits ("10 hut").
+    """
+    names, spoken = name_words.split(), spoken_words.split()
+    choices: list[list[str]] = []
+    position = 0
+    for name in names:
+        parts = [name]
+        while "".join(parts[1:]) != name and position < len(spoken):  # its pronounceable words
+            parts.append(spoken[position])
+            position += 1
+        pieces = parts[1:]
+        if "".join(pieces) != name:
+            raise ValueError(f"{spoken_words!r} is not {name_words!r} made pronounceable")
+        ways = [" ".join(pieces)]
+        if len(pieces) > 1:
+            ways += ["-".join(pieces), name]
+        digits = [_DIGITS.get(piece, piece) for piece in pieces]
+        if digits != pieces:
+            ways += [" ".join(digits)] + (["-".join(digits)] if len(pieces) > 1 else [])
+        choices.append(ways)
+    if position != len(spoken):
+        raise ValueError(f"{spoken_words!r} is not {name_words!r} made pronounceable")
+    forms = [""]
+    for ways in choices:
+        forms = [f"{head} {way}".strip() for head in forms for way in ways]
+    return tuple(dict.fromkeys(forms))

@@ -15,7 +15,7 @@ from by_your_command.offline.moonshine import (
     MoonshineScorer,
     default_model_dir,
 )
-from by_your_command.offline.tokenizer import FIRST_BYTE, SPACE, Tokenizer
+from by_your_command.offline.tokenizer import END, FIRST_BYTE, SPACE, Tokenizer
 
 Synthesize = Callable[[str, str], bytes]
 FORMS = ["move back", "move forward", "reach", "reach left", "look up", "lookup"]
@@ -91,3 +91,86 @@ def test_a_missing_model_is_a_clear_error(tmp_path: Path) -> None:
         (tmp_path / name).write_bytes(b"not a model")
     with pytest.raises(ModelUnavailableError, match="cannot load"):
         MoonshineScorer(FORMS, MoonshineConfig(model_dir=str(tmp_path)))
+
+
+class _Heard:
+    """A stand-in for Moonshine's decoder that "hears" one sentence: at each position the
+    sentence's next token (END after it) is `sure` nats above every other token; off the
+    sentence, END is. The decoder's cache carries each row's tokens so far."""
+
+    def __init__(self, tokenizer: Tokenizer, sentence: str, sure: float = 20.0) -> None:
+        self.tokens = tokenizer.encode(sentence)
+        self.size = len(tokenizer)
+        self.sure = sure
+
+    def step(
+        self,
+        hidden: np.ndarray,
+        tokens: np.ndarray,
+        past: dict[str, np.ndarray] | None,
+        cache: dict[str, np.ndarray] | None,
+    ) -> dict[str, np.ndarray]:
+        history = (
+            tokens if past is None else np.concatenate([past["past_key_values.0.decoder.key"], tokens], 1)
+        )
+        logits = np.zeros((len(history), 1, self.size), dtype=np.float32)
+        for row, seen in enumerate(history):
+            written = [int(token) for token in seen[1:]]  # after START
+            on_track = written == self.tokens[: len(written)]
+            following = self.tokens[len(written)] if on_track and len(written) < len(self.tokens) else END
+            logits[row, 0, following] = self.sure
+        return {"logits": logits, "present.0.decoder.key": history, "present.0.encoder.key": np.zeros(1)}
+
+
+def _hearing(scorer: MoonshineScorer, sentence: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    class Encoder:
+        def run(self, _names: object, _feeds: object) -> list[np.ndarray]:
+            return [np.zeros((1, 4, 416), dtype=np.float32)]
+
+    monkeypatch.setattr(scorer, "_encoder", Encoder())
+    monkeypatch.setattr(scorer, "_step", _Heard(scorer.tokenizer, sentence).step)
+
+
+@pytest.fixture
+def small_scorer() -> MoonshineScorer:
+    return MoonshineScorer(["look up", "look up to the left", ("ten hut", "10 hut")])
+
+
+@pytest.mark.unit
+def test_a_final_mark_ends_a_form_only_if_the_transcript_ends_after_it(
+    small_scorer: MoonshineScorer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    silence = np.zeros(16000, dtype=np.float32)
+    _hearing(small_scorer, "Look up.", monkeypatch)
+    assert (small_scorer.score(silence)[0].index, small_scorer.score(silence)[0].regret) == (
+        0,
+        pytest.approx(0.0),
+    )
+    # "Look up. To the left.": a period, then more words. The period is no end of "look up".
+    _hearing(small_scorer, "Look up. To the left.", monkeypatch)
+    scores = {score.index: score for score in small_scorer.score(silence)}
+    assert scores[0].regret > 7.0
+
+
+@pytest.mark.unit
+def test_the_free_transcript_comes_with_the_forms(
+    small_scorer: MoonshineScorer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    silence = np.zeros(16000, dtype=np.float32)
+    _hearing(small_scorer, "Reach for the stars.", monkeypatch)
+    analysis = small_scorer.analyse(silence)
+    assert analysis.free.text == "Reach for the stars."
+    assert analysis.free.ended and analysis.free.logprob == pytest.approx(0.0, abs=0.01)
+    assert analysis.forms and min(score.regret for score in analysis.forms) > 7.0
+    _hearing(small_scorer, " ".join(["and then"] * 12), monkeypatch)
+    assert not small_scorer.analyse(silence).free.ended  # longer than any form: cut
+
+
+@pytest.mark.unit
+def test_a_form_scores_as_its_best_written_way(
+    small_scorer: MoonshineScorer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    silence = np.zeros(16000, dtype=np.float32)
+    _hearing(small_scorer, "10 hut", monkeypatch)  # how Moonshine often writes "ten hut"
+    best = small_scorer.score(silence)[0]
+    assert (best.index, best.regret) == (2, pytest.approx(0.0))

@@ -14,6 +14,7 @@ from by_your_command.offline.spoken import (
     SpokenVocabularyConfig,
     build_spoken_forms,
     pronounceable,
+    written_forms,
 )
 
 VOCABULARY = load_vocabulary()
@@ -95,3 +96,16 @@ def test_the_model_chains_each_form_and_lets_any_word_loop_as_garbage() -> None:
     assert "public <utterance> = look up | stop;" in jsgf_grammar(["stop", "look up"])
     with pytest.raises(ValueError):
         GarbageWeights(garbage_start=1.0)
+
+
+@pytest.mark.unit
+def test_written_forms_spell_split_names_and_numbers_as_a_transcriber_would() -> None:
+    assert written_forms("look up to the left", "look up to the left") == ("look up to the left",)
+    assert written_forms("tenhut", "ten hut") == ("ten hut", "ten-hut", "tenhut", "10 hut", "10-hut")
+    assert written_forms("bumper leftish", "bumper left ish") == (
+        "bumper left ish",
+        "bumper left-ish",
+        "bumper leftish",
+    )
+    with pytest.raises(ValueError, match="pronounceable"):
+        written_forms("tenhut", "ten hat")
