@@ -21,7 +21,7 @@ from typing import Any
 from rclpy.duration import Duration
 
 _NOW = Duration(nanoseconds=0)
-MAX_PENDING = 256  # utterance ids awaiting acknowledgement (a stuck subscriber cannot grow this)
+MAX_PENDING = 256  # utterances awaiting acknowledgement; older ones are judged at once
 
 
 class DeliveryCheck:
@@ -29,7 +29,8 @@ class DeliveryCheck:
         self._publisher = publisher
         self._confirm_s = confirm_s
         self._clock = clock
-        self._pending: list[int] = []
+        self._pending: list[tuple[int, int]] = []  # (utterance id, subscribers when it ended)
+        self._judged: list[int] = []  # pushed out of a full pending list: not acknowledged in time
         self._last_publish = 0.0
 
     @property
@@ -40,17 +41,23 @@ class DeliveryCheck:
         """Something was just published; `utterance_id` when it was an utterance's end marker."""
         self._last_publish = self._clock()
         if utterance_id is not None:
-            self._pending.append(utterance_id)
-            del self._pending[:-MAX_PENDING]
+            self._pending.append((utterance_id, self._publisher.get_subscription_count()))
+            while len(self._pending) > MAX_PENDING:
+                self._judged.append(self._pending.pop(0)[0])
 
     def unacknowledged(self) -> list[int]:
         """The pending utterances now judged lost (each returned once); [] while undecided."""
+        lost, self._judged = self._judged, []
         if not self._pending:
-            return []
-        if self._publisher.wait_for_all_acked(_NOW):
+            return lost
+        # A subscriber that left (its lease ran out, or it stopped) took its acknowledgements with
+        # it: "all acknowledged" would then speak only for those still there.
+        count = self._publisher.get_subscription_count()
+        lost += [utterance for utterance, subscribers in self._pending if subscribers > count]
+        self._pending = [(u, n) for u, n in self._pending if n <= count]
+        if self._pending and self._publisher.wait_for_all_acked(_NOW):
             self._pending.clear()
-            return []
-        if self._clock() - self._last_publish < self._confirm_s:
-            return []
-        lost, self._pending = self._pending, []
+        elif self._clock() - self._last_publish >= self._confirm_s:
+            lost += [utterance for utterance, _ in self._pending]
+            self._pending.clear()
         return lost

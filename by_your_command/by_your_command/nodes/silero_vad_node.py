@@ -251,11 +251,10 @@ class SileroVadNode(Node):
         return msg
 
     def _housekeeping(self) -> None:
-        window = self.config.delivery_confirm_s
         for utterance_id in self.delivery.unacknowledged():
             # Lost if the subscriber died before receiving it; received, if it died after that but
             # before its acknowledgement was due: the VAD cannot tell which.
-            why = f"prompt_voice's subscribers did not acknowledge it within {window:g} s (a dead bridge?)"
+            why = "prompt_voice's subscribers did not acknowledge it (a bridge that died?)"
             self._unheard(utterance_id, why, certain=False)
         now = time.monotonic()
         if self.detector.streaming and now - self._last_audio > self.config.audio_timeout_ms / 1000:

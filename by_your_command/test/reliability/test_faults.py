@@ -154,9 +154,10 @@ def test_a_killed_bridge_the_utterance_in_the_outage_is_reported_by_the_vad_and_
             ledger.answered(ledger.ask("after"))
             assert agent_out.find(r"connected to ws://127\.0\.0\.1:\d+ \(connection 2\)")
 
-        # The utterance before the kill may be reported too ("may be lost": answered, but the bridge
-        # died before its acknowledgement was due, DDS heartbeats come 3 s apart).
-        assert 1 <= len(mic.unheard()) <= 2, mic.unheard()
+        # Others may be reported too, as "may be lost" though answered: the one before the kill (the
+        # bridge died before its acknowledgement was due: heartbeats come 3 s apart) and the one
+        # after the restart while DDS still held the dead bridge as a subscriber that never acks.
+        assert 1 <= len(mic.unheard()) <= 3, mic.unheard()  # three utterances spoken in all
         assert len(openai.events("response.create")) == 2  # the outage's utterance never reached it
         assert ledger.check()
 
