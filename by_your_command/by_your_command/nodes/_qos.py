@@ -10,7 +10,7 @@ STREAM = QoSProfile(
 )
 # Subscribers of streaming audio: best effort too, but a deeper queue than STREAM's. Downstream a
 # lost block is a gap (the VAD and echo control restart their timelines there), so a scheduling
-# stall of up to ~2 s of 32 ms blocks is absorbed instead of lost.
+# stall of up to ~4 s of 64 ms blocks is absorbed instead of lost.
 AUDIO_IN = QoSProfile(
     history=QoSHistoryPolicy.KEEP_LAST, depth=64, reliability=QoSReliabilityPolicy.BEST_EFFORT
 )

@@ -79,6 +79,25 @@ def wait_connected(probe: Probe, process: Any, subscriptions: list[Any]) -> None
         )
 
     wait_for(ready, timeout=20, what="command_processor discovered")
+    # Our side matching says nothing of the processor's: its verdicts (and commands) published
+    # before its writers matched our readers would be lost. A chat line's verdict coming back
+    # proves the way back; the verdicts of earlier tries come before it (one ordered writer).
+    verdict_topic = probe.node.get_namespace().rstrip("/") + "/command_status"
+    if not any(sub.topic_name == verdict_topic for sub in subscriptions):
+        return
+    tries = iter(range(1, 1000))
+
+    def answered() -> bool:
+        marker = f"warm-up {next(tries)}"
+        probe.send(marker)
+        for _ in range(25):
+            probe.spin()
+            if any(v.raw == marker for v in probe.verdicts()):
+                return True
+        return False
+
+    wait_for(answered, timeout=20, what="a verdict back from command_processor")
+    probe.received.clear()
 
 
 @pytest.mark.ros
