@@ -51,6 +51,7 @@ from agent_graph import (  # type: ignore[import-not-found]  # noqa: E402  (test
     agent_config,
     agent_process,
     alive,
+    bridge,
     corpus_utterance,
     emulator,
     graph_probe,
@@ -58,7 +59,7 @@ from agent_graph import (  # type: ignore[import-not-found]  # noqa: E402  (test
     setup_requests,
     until,
 )
-from fault_graph import bridge, failures  # type: ignore[import-not-found]  # noqa: E402
+from fault_graph import failures  # type: ignore[import-not-found]  # noqa: E402
 
 from by_your_command.emulators.openai_script import Say, Script, Turn  # noqa: E402
 

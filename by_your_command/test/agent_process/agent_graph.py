@@ -188,21 +188,40 @@ class Output:
         return "\n".join(self.lines[-60:])
 
 
+@dataclass
+class Bridge:
+    port: int
+    process: subprocess.Popen[str]
+    output: Output
+
+    def kill(self) -> None:
+        """SIGKILL: no close frames, no DDS goodbye; the kernel resets its sockets."""
+        self.process.send_signal(signal.SIGKILL)
+        self.process.wait(timeout=10)
+
+
 @contextmanager
-def bridge_process(namespace: str, port: int = 0) -> Iterator[tuple[int, Output]]:
+def bridge(namespace: str, port: int = 0, *params: str) -> Iterator[Bridge]:
+    """ros_ai_bridge as a process (its handle kept, so a test can kill it); `params` name:=value."""
+    args = [arg for param in ("diagnostics_period_s:=0.2", f"port:={port}", *params) for arg in ("-p", param)]
     command = python_module(
-        "by_your_command.nodes.ros_ai_bridge",
-        "--ros-args", "-r", f"__ns:={namespace}", "-p", f"port:={port}", "-p", "diagnostics_period_s:=0.2",
-    )  # fmt: skip
+        "by_your_command.nodes.ros_ai_bridge", "--ros-args", "-r", f"__ns:={namespace}", *args
+    )
     with running_process(command) as process:
         output = Output(process)
         match = wait_for(
             lambda: output.find(r"listening on 127\.0\.0\.1:(\d+)") or process.poll() is not None,
-            timeout=30,
+            timeout=60,
             what="bridge startup",
         )
         assert isinstance(match, re.Match), str(output)
-        yield int(match.group(1)), output
+        yield Bridge(int(match.group(1)), process, output)
+
+
+@contextmanager
+def bridge_process(namespace: str, port: int = 0) -> Iterator[tuple[int, Output]]:
+    with bridge(namespace, port) as running:
+        yield running.port, running.output
 
 
 @contextmanager
@@ -458,6 +477,11 @@ class GraphProbe:
                 if status.name.startswith(namespace):
                     return {kv.key: kv.value for kv in status.values}
         return None
+
+    def bridge_sources(self, namespace: str, name: str) -> int:
+        """Publishers the bridge's own subscription to `name` has matched (its side of discovery)."""
+        values = self.bridge_values(namespace) or {}
+        return int(values.get(f"sources.{self.probe.topic(name)}", 0))
 
     def wait_agents_ready(self, namespace: str, requests: list[int], timeout: float = 40.0) -> None:
         """Until the bridge has one client per agent and each has sent all its setup requests

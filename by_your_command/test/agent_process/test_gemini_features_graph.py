@@ -188,13 +188,14 @@ def test_boxes_in_a_reply_go_to_detections_in_the_frames_pixels_and_never_to_the
         probe, check = graph.probe, graph.check
         detections = listen(probe, "detections", check)
         camera = probe.probe.node.create_publisher(CompressedImage, "camera_forwarded", RELIABLE)
-        sources = f"sources.{probe.probe.topic('camera_forwarded')}"
 
         def bridge_hears_the_camera() -> bool:
             # Both sides of the match: the bridge's video subscription is best effort, so a frame
             # sent before it has matched this publisher is lost without a retry.
-            values = probe.bridge_values(ros_namespace) or {}
-            return camera.get_subscription_count() > 0 and int(values.get(sources, 0)) > 0
+            return (
+                camera.get_subscription_count() > 0
+                and probe.bridge_sources(ros_namespace, "camera_forwarded") > 0
+            )
 
         until(bridge_hears_the_camera, "the bridge and the camera publisher matched", check, WAIT_S)
         frame = jpeg(320, 240)  # not square: x and y cannot be swapped unnoticed

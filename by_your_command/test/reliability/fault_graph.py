@@ -1,13 +1,12 @@
-"""Helpers for the fault injection suite (test_faults.py) and bench/bench_faults.py: a bridge
-process that can be killed, the real VAD node fed by the probe's audio, a raw WebSocket client that
-never reads, and the ledger every fault test closes with (each utterance answered or reported)."""
+"""Helpers for the fault injection suite (test_faults.py) and bench/bench_faults.py: the real VAD
+node fed by the probe's audio, a raw WebSocket client that never reads, and the ledger every fault
+test closes with (each utterance answered or reported). The killable bridge is agent_graph's."""
 
 from __future__ import annotations
 
 import base64
 import os
 import re
-import signal
 import socket
 import subprocess
 import time
@@ -19,42 +18,12 @@ from typing import Any
 import numpy as np
 from agent_graph import VAD_RATE, GraphProbe, Output
 from by_your_command_msgs.msg import AudioChunk
-from byc_testing import python_module, running_process, wait_for
+from byc_testing import python_module, running_process
 
 from by_your_command.nodes._audio_msgs import make_audio_chunk
 from by_your_command.nodes._qos import STREAM
 
 LOST_BY_VAD = " lost: "  # "is lost": nobody subscribed to prompt_voice; "may be lost": nobody acknowledged
-
-
-@dataclass
-class Bridge:
-    port: int
-    process: subprocess.Popen[str]
-    output: Output
-
-    def kill(self) -> None:
-        """SIGKILL: no close frames, no DDS goodbye; the kernel resets its sockets."""
-        self.process.send_signal(signal.SIGKILL)
-        self.process.wait(timeout=10)
-
-
-@contextmanager
-def bridge(namespace: str, port: int = 0, *params: str) -> Iterator[Bridge]:
-    """ros_ai_bridge as a process (its handle kept, so a test can kill it); `params` name:=value."""
-    args = [arg for param in ("diagnostics_period_s:=0.2", f"port:={port}", *params) for arg in ("-p", param)]
-    command = python_module(
-        "by_your_command.nodes.ros_ai_bridge", "--ros-args", "-r", f"__ns:={namespace}", *args
-    )
-    with running_process(command) as process:
-        output = Output(process)
-        match = wait_for(
-            lambda: output.find(r"listening on 127\.0\.0\.1:(\d+)") or process.poll() is not None,
-            timeout=60,
-            what="bridge startup",
-        )
-        assert isinstance(match, re.Match), str(output)
-        yield Bridge(int(match.group(1)), process, output)
 
 
 # --- the real VAD, fed by the probe -------------------------------------------------------------

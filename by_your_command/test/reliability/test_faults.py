@@ -23,12 +23,14 @@ from typing import Any
 import numpy as np
 import pytest
 from agent_graph import (
+    Bridge,
     EmulatorThread,
     GraphProbe,
     Output,
     agent_config,
     agent_process,
     alive,
+    bridge,
     corpus_utterance,
     emulator,
     gemini_emulator,
@@ -38,7 +40,7 @@ from agent_graph import (
     setup_requests,
     until,
 )
-from fault_graph import Bridge, DeafClient, Ledger, bridge, failures, microphone, turn_records
+from fault_graph import DeafClient, Ledger, failures, microphone, turn_records
 from std_msgs.msg import Bool
 
 from by_your_command.emulators import gemini_script as gemini
@@ -140,12 +142,11 @@ def test_a_killed_bridge_the_utterance_in_the_outage_is_reported_by_the_vad_and_
         with bridge(ros_namespace, old.port) as new:
             check = alive(agent, mic.process, new.process)
             probe.wait_agents_ready(ros_namespace, [setup_requests(settings)], WAIT_S)
+
             # The agent's subscription makes the new bridge subscribe prompt_voice; the VAD (like
             # this probe) sees it only once DDS has matched them: speak after that.
-            voice_topic = f"sources.{probe.probe.topic('prompt_voice')}"
-
             def vad_matched() -> bool:  # the bridge's subscription sees both publishers: VAD and probe
-                return int((probe.bridge_values(ros_namespace) or {}).get(voice_topic, 0)) >= 2
+                return probe.bridge_sources(ros_namespace, "prompt_voice") >= 2
 
             until(vad_matched, "the new bridge's prompt_voice matched the VAD", check, WAIT_S)
             mic.speak(speech)
