@@ -82,16 +82,28 @@ def test_client_subscribes_and_publishes_through_the_bridge(
     node = graph_node
     responses: list[str] = []
     node.create_subscription(String, "response_text", lambda m: responses.append(m.data), _qos.RELIABLE)
+    reports: list[DiagnosticArray] = []
+    node.create_subscription(DiagnosticArray, "/diagnostics", reports.append, _qos.RELIABLE)
     prompts = node.create_publisher(String, "prompt_text", _qos.RELIABLE)
     with bridge_node(ros_namespace, env={"BYC_BRIDGE_TOKEN": TOKEN}) as (port, bridge_lines):
         wait_for(
             lambda: prompts.get_subscription_count() >= 1, timeout=20, what="bridge subscribes prompt_text"
         )
-        wait_for(
-            lambda: node.count_publishers(f"{ros_namespace}/response_text") >= 1,
-            timeout=20,
-            what="bridge publishes response_text",
-        )
+
+        def bridge_matched_us() -> bool:
+            # The bridge's side of the match (its publisher sees our subscription): a message it
+            # publishes before then is not delivered to us.
+            key = f"listeners.{ros_namespace}/response_text"
+            return any(
+                int(kv.value) >= 1
+                for array in list(reports)
+                for status in array.status
+                if status.name.startswith(ros_namespace)
+                for kv in status.values
+                if kv.key == key
+            )
+
+        wait_for(bridge_matched_us, timeout=20, what="the bridge's response_text publisher matched ours")
         with running_process([sys.executable, PROBE, library, str(port), TOKEN]) as probe:
             probe_lines = Lines(probe)
             wait_for(lambda: probe_lines.find("^ready") or probe.poll() is not None, timeout=20, what="probe")
