@@ -1,10 +1,10 @@
 """Idle CPU of the whole offline graph: the robot listening, nobody speaking (goal ≤ 5 % of one core).
 
-`byc up offline` (file source → echo control → VAD + clap → bridge → offline agent, player, command
-processor) with the microphone replaced by a looped file of faint room noise at real time, so every
-node does its real per-block work. After a warm-up, each process's CPU time is read from /proc over
-the measuring window. Same-run baseline: an empty rclpy node spinning (the floor any ROS process
-costs here), measured over the same window.
+`byc up offline` (file source → VAD gating on assistant_speaking + clap → bridge → offline agent,
+player, command processor) with the microphone replaced by a looped file of faint room noise at
+real time, so every node does its real per-block work. After a warm-up, each process's CPU time
+is read from /proc over the measuring window. Same-run baseline: an empty rclpy node spinning
+(the floor any ROS process costs here), measured over the same window.
 
 usage: scripts/run.sh python bench/bench_idle_cpu.py [--warmup-s 20] [--measure-s 30] [--set NODE.PARAM=V]
 """

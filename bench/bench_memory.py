@@ -1,6 +1,6 @@
 """Memory of the audio nodes under a fast audio stream: RSS growth per 10,000 messages.
 
-The audio front end as the cloud profiles run it (file_audio_publisher → echo_suppressor (gate) →
+The audio front end's nodes (file_audio_publisher → echo_suppressor (gate; aec mode's hop) →
 silero_vad_node, and clap_detector_node on `audio`), each node in its own process, the corpus
 looped at `--rate` times real time (31.25 blocks of 512 samples a second at 1×). Same-run baseline:
 a bare rclpy publisher and subscriber (rclpy.spin, no code of ours) carrying the same AudioChunk

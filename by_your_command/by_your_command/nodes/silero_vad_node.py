@@ -1,9 +1,11 @@
 """silero_vad_node: audio (AudioChunk, any block size) -> voice_activity + prompt_voice utterance chunks.
 
 Listens on `input_topic` (default `audio_filtered`; set it to `audio`, or remap, when there is no
-echo control). Sleep/wake via `wake_cmd`, mute via `voice_active`, wake/sleep phrases on
-`prompt_text`, and (`spoken_wake`) a wake phrase spoken while asleep, decoded here; the state is
-latched on `attention_state`. Logic lives in by_your_command.vad.
+echo control); with `echo_gate` it ignores its input while `assistant_speaking` and a tail after
+(half duplex in one hop: the profiles' gate echo mode runs no echo_suppressor). Sleep/wake via
+`wake_cmd`, mute via `voice_active`, wake/sleep phrases on `prompt_text`, and (`spoken_wake`) a
+wake phrase spoken while asleep, decoded here; the state is latched on `attention_state`. Logic
+lives in by_your_command.vad.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
 from by_your_command.vad.attention import Attention, AttentionState, PhraseCommand, PhraseMatcher
 from by_your_command.vad.config import VadConfig
 from by_your_command.vad.detector import VoiceDetector
+from by_your_command.vad.echo_gate import EchoGate
 from by_your_command.vad.model import SileroModel
 from by_your_command.vad.segmenter import Event, UtteranceChunk, VoiceActivity
 from by_your_command.vad.spoken_wake import (
@@ -62,7 +65,12 @@ class SileroVadNode(Node):
         self.create_subscription(Bool, "wake_cmd", self._on_wake_cmd, RELIABLE)
         self.create_subscription(Bool, "voice_active", self._on_voice_active, RELIABLE)
         self.create_subscription(String, "prompt_text", self._on_prompt_text, RELIABLE)
+        self._gate: EchoGate | None = None
+        if self.config.echo_gate:
+            self._gate = EchoGate(self.config.gate_tail_ms)
+            self.create_subscription(Bool, "assistant_speaking", self._on_speaking, LATCHED)
         self.blocks_ignored = 0  # arrived while asleep or muted
+        self.blocks_gated = 0  # captured while the assistant spoke (echo_gate)
         self.blocks_rejected = 0  # malformed
         self.publish_failures = 0
         self.utterances = 0
@@ -86,7 +94,9 @@ class SileroVadNode(Node):
         self.get_logger().info(
             f"VAD ready on '{self.config.input_topic}': threshold={self.config.threshold} "
             f"min_silence={self.config.min_silence_duration_ms} ms pre_roll={self.config.pre_roll_frames} "
-            f"chunk={self.config.utterance_chunk_frames} frames, {self.attention.state.value}"
+            f"chunk={self.config.utterance_chunk_frames} frames, "
+            f"echo gate {f'on (tail {self.config.gate_tail_ms} ms)' if self._gate else 'off'}, "
+            f"{self.attention.state.value}"
         )
 
     def _start_spoken_wake(self) -> WakeWorker | None:
@@ -129,9 +139,28 @@ class SileroVadNode(Node):
                 self.wake_rejections += 1
                 self.get_logger().info(f"spoken wake: not a wake phrase ({self.wake_rejections} so far)")
 
+    def _on_speaking(self, msg: Bool) -> None:
+        if self._gate is None:  # not subscribed without it
+            return
+        started = self._gate.set_speaking(bool(msg.data), int(self.get_clock().now().nanoseconds))
+        if started and self.detector.streaming:
+            # From now on the mic hears the robot: the open utterance ends here, not when the
+            # audio timeout notices that no input passes.
+            self._stop_detector()
+
+    def _gated(self, msg: AudioChunk) -> bool:
+        if self._gate is None:
+            return False
+        start = _to_ns(msg.header.stamp)
+        rate = max(int(msg.sample_rate), 1) * max(int(msg.channels), 1)  # checked later, if admitted
+        end = start + len(msg.data) * NS_PER_S // rate
+        return not self._gate.admits(start, end, int(self.get_clock().now().nanoseconds))
+
     def _on_audio(self, msg: AudioChunk) -> None:
         self._last_audio = time.monotonic()
-        if self.attention.listening:
+        if self._gated(msg):
+            self.blocks_gated += 1
+        elif self.attention.listening:
             self._publish(self._detect(msg))
         elif self._wake_worker is not None and self.attention.state is AttentionState.ASLEEP:
             self._asleep_audio = True
@@ -271,6 +300,7 @@ class SileroVadNode(Node):
             self.detector.frames,
             self.utterances,
             self.blocks_ignored,
+            self.blocks_gated,
             self.blocks_rejected,
             self.publish_failures,
             self.detector.discontinuities,
@@ -282,8 +312,8 @@ class SileroVadNode(Node):
             self._reported = current
             self.get_logger().info(
                 f"frames={current[0]} utterances={current[1]} ignored_blocks={current[2]} "
-                f"rejected_blocks={current[3]} publish_failures={current[4]} stream_restarts={current[5]} "
-                f"unheard_utterances={current[6]} "
+                f"gated_blocks={current[3]} rejected_blocks={current[4]} publish_failures={current[5]} "
+                f"stream_restarts={current[6]} unheard_utterances={current[7]} "
                 f"resampled_blocks={self.detector.resampled_blocks}{self._spoken_wake_stats()}"
             )
 

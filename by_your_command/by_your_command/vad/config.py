@@ -75,6 +75,17 @@ class VadConfig:
     input_topic: str = field(
         default="audio_filtered", metadata={"help": "audio input (AudioChunk); 'audio' without echo control"}
     )
+    echo_gate: bool = field(
+        default=False,
+        metadata={
+            "help": "half duplex without an echo_suppressor: ignore the input while assistant_speaking is "
+            "true and gate_tail_ms after (the profiles' gate echo mode)"
+        },
+    )
+    gate_tail_ms: int = field(
+        default=300,
+        metadata={"help": "echo_gate: keep ignoring the input this long after the assistant stops"},
+    )
 
     def __post_init__(self) -> None:
         if not 0.0 < self.threshold < 1.0:
@@ -95,6 +106,8 @@ class VadConfig:
             raise ValueError(f"audio_timeout_ms must be > 0, got {self.audio_timeout_ms}")
         if not 0.0 < self.delivery_confirm_s <= 3600.0:  # also refuses NaN
             raise ValueError(f"delivery_confirm_s must be in (0, 3600], got {self.delivery_confirm_s}")
+        if not 0 <= self.gate_tail_ms <= 10_000:
+            raise ValueError(f"gate_tail_ms must be in [0, 10000], got {self.gate_tail_ms}")
         if self.gap_tolerance_ms <= 0:
             raise ValueError(f"gap_tolerance_ms must be > 0, got {self.gap_tolerance_ms}")
         PhraseMatcher(self.wake_phrases, self.sleep_phrases, self.robot_name)  # raises on a bad phrase

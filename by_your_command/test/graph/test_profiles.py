@@ -39,18 +39,16 @@ def test_voice_only_profile_from_a_file(config_dir: Path) -> None:
     assert graph.namespace == "/grunt1/agent"
     assert [n.name for n in graph.nodes] == [
         "file_audio_publisher",
-        "echo_suppressor",
-        "silero_vad_node",
+        "silero_vad_node",  # gate and external need no echo_suppressor: the VAD reads `audio`
         "voice_recorder",  # the voice-only profile records by default, like the earlier byc.launch.py
     ]
     assert graph.agents == ()
     source = graph.node("file_audio_publisher").parameters
     assert source["files"] == [str(WAV)]
-    assert source["min_subscribers"] == 1  # only echo_suppressor listens to `audio` here
-    assert graph.node("echo_suppressor").parameters["mode"] == "external"
+    assert source["min_subscribers"] == 1  # only the VAD listens to `audio` here
     # the config file's section, with ints turned into floats where the node declares a float
     vad = graph.node("silero_vad_node").parameters
-    assert vad == {**VAD_SECTION, "threshold": 0.61}
+    assert vad == {**VAD_SECTION, "threshold": 0.61, "input_topic": "audio", "echo_gate": False}
     assert graph.node("voice_recorder").executable == "voice_chunk_recorder"
     assert graph.node("voice_recorder").parameters == {"input_mode": "utterance", "output_dir": ""}
 
@@ -95,12 +93,14 @@ def test_agent_profiles(
     graph = build_graph(
         profile, parse_options({"audio_sink": "wav:/tmp/reply.wav"}, PROFILES[profile].defaults)
     )
-    base = ["audio_capture", "echo_suppressor", "silero_vad_node", "clap_detector_node"]
+    base = ["audio_capture", "silero_vad_node", "clap_detector_node"]  # gate: in the VAD
     services = ["simple_audio_player", "ros_ai_bridge", "command_processor"]
     assert [n.name for n in graph.nodes] == base + services + extra
     assert [Path(a.config_file).name for a in graph.agents] == agents
     assert all(a.executable == "byc" and a.arguments == ("agent",) for a in graph.agents)
     assert graph.node("clap_detector_node").parameters == CLAP_SECTION
+    vad = graph.node("silero_vad_node").parameters
+    assert vad["input_topic"] == "audio" and vad["echo_gate"] is True
     player = graph.node("simple_audio_player").parameters
     assert player == {**PLAYER_SECTION, "sink": "wav", "wav_path": "/tmp/reply.wav"}
     timeout = float(PROFILES[profile].defaults["pause_timeout"])
@@ -135,6 +135,7 @@ def test_agent_options_reach_the_agent_configs(config_dir: Path, agent_dir: Path
     assert graph.node("ros_ai_bridge").parameters == {"port": 9191}
     assert command["provider"] == {"model": "gpt-mini"} and command["role"] == "command"
     assert graph.node("echo_suppressor").parameters["mode"] == "aec"
+    assert graph.node("silero_vad_node").parameters.get("input_topic", "audio_filtered") == "audio_filtered"
 
 
 @pytest.mark.unit

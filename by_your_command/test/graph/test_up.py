@@ -14,7 +14,7 @@ from graph.up_runner import byc_up, pid_alive, wait_for_exit
 from by_your_command.cli import up
 
 WAV = Path(__file__).resolve().parents[1] / "data" / "corpus" / "clean_en_us.wav"
-VOICE_NODES = {"file_audio_publisher", "echo_suppressor", "silero_vad_node", "voice_recorder"}
+VOICE_NODES = {"file_audio_publisher", "silero_vad_node", "voice_recorder"}
 
 
 def voice_only(namespace: str, recordings: Path) -> list[str]:
@@ -35,7 +35,7 @@ def voice_only(namespace: str, recordings: Path) -> list[str]:
 def test_up_runs_the_graph_and_stops_everything_on_ctrl_c(ros_namespace: str, tmp_path: Path) -> None:
     with byc_up(*voice_only(ros_namespace, tmp_path)) as running:
         wait_for(lambda: set(running.children()) == VOICE_NODES or running.check_running(), what="starts")
-        # the graph works: an utterance went file -> echo control -> VAD -> recorder
+        # the graph works: an utterance went file -> VAD (gating on assistant_speaking) -> recorder
         wait_for(
             lambda: (
                 any("wrote " in line for line in running.lines_of("voice_recorder"))
@@ -84,7 +84,7 @@ def test_dry_run_prints_the_command_lines(capsys: pytest.CaptureFixture[str], co
     out = capsys.readouterr().out
     assert status == 0
     commands = [line for line in out.splitlines() if not line.startswith("#")]
-    assert len(commands) == 5 and all("-r __ns:=/robot1/ears" in line for line in commands)
+    assert len(commands) == 4 and all("-r __ns:=/robot1/ears" in line for line in commands)
     assert "-r __node:=mic_recorder" in out and "-r response_voice:=audio" in out
 
 
