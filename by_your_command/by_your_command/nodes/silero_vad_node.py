@@ -75,6 +75,7 @@ class SileroVadNode(Node):
         self.publish_failures = 0
         self.utterances = 0
         self.unheard_utterances = 0  # published to no subscriber, or none acknowledged it: lost
+        self._listeners = 0  # prompt_voice subscribers matched, as last logged
         self._reported: tuple[int, ...] = ()
         self._last_audio = time.monotonic()
         self._last_report = time.monotonic()
@@ -280,6 +281,10 @@ class SileroVadNode(Node):
         return msg
 
     def _housekeeping(self) -> None:
+        listeners = self.voice_pub.get_subscription_count()
+        if listeners != self._listeners:  # a bridge or agent came or went (a dead one: ~20 s later)
+            self.get_logger().info(f"prompt_voice subscribers: {self._listeners} -> {listeners}")
+            self._listeners = listeners
         for utterance_id in self.delivery.unacknowledged():
             # Lost if the subscriber died before receiving it; received, if it died after that but
             # before its acknowledgement was due: the VAD cannot tell which.

@@ -44,6 +44,17 @@ class Microphone:
     def unheard(self) -> list[str]:
         return [line for line in list(self.output.lines) if LOST_BY_VAD in line]
 
+    def mark(self) -> int:
+        return len(self.output.lines)
+
+    def gained_listener(self, since: int) -> bool:
+        """The VAD's own publisher matched another prompt_voice subscriber after `since` (mark())."""
+        for line in list(self.output.lines)[since:]:
+            counts = re.search(r"prompt_voice subscribers: (\d+) -> (\d+)", line)
+            if counts and int(counts[2]) > int(counts[1]):
+                return True
+        return False
+
     def speak(self, speech: np.ndarray, speed: float = 4.0) -> None:
         """Half a second of silence, the speech, then a second of silence (its end): paced at
         `speed` times real time, so the best-effort audio topic keeps every block."""

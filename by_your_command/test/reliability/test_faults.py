@@ -139,14 +139,18 @@ def test_a_killed_bridge_the_utterance_in_the_outage_is_reported_by_the_vad_and_
         ledger.reported("during the outage", f"silero_vad_node: {mic.unheard()[0]}")
 
         probe.diagnostics.clear()
+        before_restart = mic.mark()
         with bridge(ros_namespace, old.port) as new:
             check = alive(agent, mic.process, new.process)
             probe.wait_agents_ready(ros_namespace, [setup_requests(settings)], WAIT_S)
 
-            # The agent's subscription makes the new bridge subscribe prompt_voice; the VAD (like
-            # this probe) sees it only once DDS has matched them: speak after that.
-            def vad_matched() -> bool:  # the bridge's subscription sees both publishers: VAD and probe
-                return probe.bridge_sources(ros_namespace, "prompt_voice") >= 2
+            # The agent's subscription makes the new bridge subscribe prompt_voice; speak once DDS
+            # matched both sides: the bridge's reader sees the VAD (and this probe), and the VAD's
+            # writer sees the new reader (else the utterance goes only to the dead bridge).
+            def vad_matched() -> bool:
+                return probe.bridge_sources(ros_namespace, "prompt_voice") >= 2 and mic.gained_listener(
+                    before_restart
+                )
 
             until(vad_matched, "the new bridge's prompt_voice matched the VAD", check, WAIT_S)
             mic.speak(speech)
