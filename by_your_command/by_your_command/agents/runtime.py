@@ -390,6 +390,7 @@ class AgentRuntime:
         )
         turn.resampler = StreamResampler(chunk.sample_rate, session.input_sample_rate)
         turn.last_chunk_at = now
+        turn.deferred = bool(self._waiting)
         if self._barge is not None and self._barge_turn is None:
             turn.held = True
             self._barge_turn = turn
@@ -430,7 +431,7 @@ class AgentRuntime:
 
     def _append_audio(self, turn: Turn, pcm: bytes) -> None:
         turn.add_audio(pcm)
-        if not turn.held and self._session is not None and pcm:
+        if not turn.held and not turn.deferred and self._session is not None and pcm:
             self._session.send(SendAudio(pcm))
             self._last_activity = self._clock.now()
 
@@ -536,6 +537,18 @@ class AgentRuntime:
         session = self._ensure_session()
         self._turn_out = turn
         turn.committed = True
+        if turn.deferred:
+            turn.deferred = False
+            if not turn.replayable:
+                log.warning(
+                    "agent %s: turn %d waited for its commit longer than connect_buffer_s held: only its "
+                    "first %.0f s are sent",
+                    self.config.agent_id,
+                    turn.number,
+                    self.config.connect_buffer_s,
+                )
+            if turn.audio:
+                session.send(SendAudio(bytes(turn.audio)))
         if turn.kind == "text":
             self._send_frame(session)
             session.send(SendText(turn.text))
@@ -652,7 +665,7 @@ class AgentRuntime:
             )
             if turn is not None:
                 turn.held = False
-                if self._session is not None and turn.audio:
+                if self._session is not None and turn.audio and not turn.deferred:
                     self._session.send(SendAudio(bytes(turn.audio)))
         else:
             self.counters.false_barge_ins += 1
@@ -1113,16 +1126,22 @@ class AgentRuntime:
         self._ensure_session()  # replays the pending turns
 
     def _replay(self, session: Session) -> None:
-        """Every turn not yet answered, in order, into a new session: the first is committed at once,
-        the others' audio follows it (their commits wait for the reply, as they did before)."""
+        """Every turn not yet answered, in order, into a new session: the first is committed at once;
+        the others wait for the reply as they did before, each sending its audio at its own commit
+        (one input buffer: audio sent now would be taken by the first commit)."""
         first = self._waiting.popleft() if self._waiting else None
         if first is not None:
+            first.deferred = False
             if first.audio:
                 session.send(SendAudio(bytes(first.audio)))
             self._commit(first)
-        for later in [*self._waiting, self._turn_in]:
-            if later is not None and later.audio and not later.held:
-                session.send(SendAudio(bytes(later.audio)))
+        for later in self._waiting:
+            later.deferred = True
+        speaking = self._turn_in
+        if speaking is not None and not speaking.held:
+            speaking.deferred = bool(self._waiting)
+            if speaking.audio and not speaking.deferred:
+                session.send(SendAudio(bytes(speaking.audio)))
 
     async def _new_conversation(self, why: str, conversation_id: str = "") -> None:
         now = self._clock.now()

@@ -30,6 +30,9 @@ class Turn:
     audio: bytearray = field(default_factory=bytearray)  # at the provider's input rate
     replayable: bool = True
     held: bool = False  # a pending barge-in holds the audio until the speech proves real
+    # Spoken while an earlier turn waited for its commit: the provider has one input buffer, so
+    # this turn's audio goes only when it is committed (else the earlier commit would take it).
+    deferred: bool = False
     ended_at: float | None = None  # end marker (or text) received: the moment latency is measured from
     committed: bool = False
     reply_started: bool = False

@@ -160,3 +160,27 @@ def test_a_second_turn_waits_for_the_reply_in_progress() -> None:
         assert isinstance(turns[0], TurnMetrics)
 
     run_virtual(scenario())
+
+
+def test_turns_that_wait_together_are_committed_one_by_one_with_their_own_audio() -> None:
+    # The provider has one input buffer: two turns streamed while the reply in progress plays would
+    # both be taken by the first commit, and the second commit would find it empty.
+    async def scenario() -> None:
+        factory = FakeFactory(
+            spoken_reply("r1", seconds=1.0, pace_s=0.3), spoken_reply("r2", seconds=0.2), spoken_reply("r3")
+        )
+        async with running_agent(AgentConfig(), factory) as agent:  # gate: no barge-in
+            await speak(agent.port, 1, seconds=0.3)
+            await speak(agent.port, 2, seconds=0.2)  # both end while r1 is still being generated
+            await speak(agent.port, 3, seconds=0.4)
+            provider = factory.last
+            assert provider.names().count("end_of_turn") == 1
+            await asyncio.sleep(5.0)
+            await agent.stop()
+        committed = [total for name, total in provider.calls if name == "end_of_turn"]
+        per_turn = [after - before for before, after in zip([0, *committed], committed, strict=False)]
+        bytes_per_s = 24000 * 2  # resampled to the provider's 24 kHz
+        assert per_turn == [pytest.approx(s * bytes_per_s, abs=4) for s in (0.3, 0.2, 0.4)]
+        assert [t.outcome for t in agent.port.turns()] == ["completed"] * 3
+
+    run_virtual(scenario())
