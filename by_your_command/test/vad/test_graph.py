@@ -1,5 +1,5 @@
 """The audio front end as separate processes on a real rclpy graph:
-file_audio_publisher -> echo_suppressor (external) -> silero_vad_node -> voice_chunk_recorder."""
+file_audio_publisher -> silero_vad_node -> voice_chunk_recorder (the profiles' wiring without aec)."""
 
 from __future__ import annotations
 
@@ -75,15 +75,13 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
     session = next(s for s in sessions() if s.name == "clean_en_us")
     out_dir = tmp_path / "recordings"
     recorder_cmd = node("voice_chunk_recorder", ros_namespace, f"output_dir:={out_dir}")
-    vad_cmd = node("silero_vad_node", ros_namespace, "min_silence_duration_ms:=400")
-    echo_cmd = node("echo_suppressor", ros_namespace, "mode:=external")
+    vad_cmd = node("silero_vad_node", ros_namespace, "min_silence_duration_ms:=400", "input_topic:=audio")
     with (
         probe_node(ros_namespace) as probe,
         running_process(recorder_cmd) as recorder,
         running_process(vad_cmd) as vad,
-        running_process(echo_cmd) as echo,
     ):
-        check = alive(recorder, vad, echo)
+        check = alive(recorder, vad)
         chunks = probe.listen(AudioDataUtterance, "prompt_voice", RELIABLE)
         activity = probe.listen(Bool, "voice_activity", RELIABLE)
         states = probe.listen(String, "attention_state", LATCHED)
@@ -93,28 +91,28 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
 
         def wired() -> bool:
             return (
-                graph.count_publishers(probe.topic("audio_filtered")) >= 1
-                and graph.count_subscribers(probe.topic("audio_filtered")) >= 1
+                graph.count_subscribers(probe.topic("audio")) >= 2  # the VAD and this probe
                 and graph.count_subscribers(probe.topic("prompt_voice")) >= 2
                 and bool(states)
             )
 
-        spin_until(
-            probe, check, wired, timeout=30, what="echo_suppressor, VAD and recorder to discover each other"
-        )
+        spin_until(probe, check, wired, timeout=30, what="the VAD and the recorder to discover each other")
         assert states[-1].data == "awake"
         publisher_cmd = node(
             "file_audio_publisher",
             ros_namespace,
             f"files:=[{session.path}]",
-            "rate_factor:=3.0",
+            # Faster than real time (the stamps must still follow the file's own timeline), but
+            # only 2x: a block lost to a stalled process is a gap, and a gap drops the pre-roll.
+            "rate_factor:=2.0",
             # 100 ms chunks: a publisher tick late under load bursts fewer chunks than the
-            # subscribers' queues hold (a lost block is a gap, and a gap drops the pre-roll)
+            # subscribers' queues hold
             "chunk_samples:=1600",
             "lead_silence_ms:=1000",
+            "min_subscribers:=2",  # the VAD and this probe, as the publisher's writer sees them
         )
         with running_process(publisher_cmd) as publisher:
-            check_all = alive(recorder, vad, echo)
+            check_all = alive(recorder, vad)
             spin_until(
                 probe,
                 check_all,
@@ -134,11 +132,11 @@ def test_file_to_recorder_writes_one_file_per_utterance(ros_namespace: str, tmp_
                 timeout=60,  # the VAD may still work through a backlog on a loaded machine
                 what=f"{expected} utterance files",
             )
-            interrupt(publisher, echo, vad, recorder)
+            interrupt(publisher, vad, recorder)
 
     files = sorted(out_dir.glob("utterance_*.wav"))
     assert len(files) == expected, [f.name for f in files]
-    # Played 3x faster, the file's stamps still follow its own timeline: consecutive chunks are
+    # Played 2x faster, the file's stamps still follow its own timeline: consecutive chunks are
     # whole chunk durations apart (best effort may lose some), never compressed into fake gaps.
     stamps_ms = [m.header.stamp.sec * 1000 + m.header.stamp.nanosec / 1e6 for m in played]
     steps = [later - earlier for earlier, later in zip(stamps_ms, stamps_ms[1:], strict=False)]
