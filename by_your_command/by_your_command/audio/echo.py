@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.signal import butter, sosfilt
 
+from by_your_command.audio.echo_gate import EchoGate
 from by_your_command.audio.pcm import Int16Array, StampedPcm, StampedResampler, float_to_int16, to_mono
 
 if TYPE_CHECKING:
@@ -135,23 +136,6 @@ class EchoStats:
     aec_frames: int = 0
     aec_frames_unreferenced: int = 0  # released after the full wait, their reference still missing
     guard_frames_muted: int = 0  # aec frames the echo guard held back as residual echo
-
-
-class HalfDuplexGate:
-    """Decides whether the mic is open: closed while the assistant speaks and for a tail after."""
-
-    def __init__(self, tail_ms: int) -> None:
-        self._tail_ns = tail_ms * 1_000_000
-        self._speaking = False
-        self._closed_until_ns = 0
-
-    def set_speaking(self, speaking: bool, now_ns: int) -> None:
-        if self._speaking and not speaking:
-            self._closed_until_ns = now_ns + self._tail_ns
-        self._speaking = speaking
-
-    def is_open(self, now_ns: int) -> bool:
-        return not self._speaking and now_ns >= self._closed_until_ns
 
 
 class ReferenceTimeline:
@@ -363,7 +347,7 @@ class EchoController:
         self.mode = config.echo_mode
         self.sample_rate = sample_rate = config.sample_rate
         self.stats = EchoStats()
-        self._gate = HalfDuplexGate(config.gate_tail_ms)
+        self._gate = EchoGate(config.gate_tail_ms)
         self._speaking = False
         self._aec: Aec3 | None = None
         self._reference = ReferenceTimeline(sample_rate, config.reference_history_ms)
@@ -427,7 +411,8 @@ class EchoController:
         if self.mode is EchoMode.EXTERNAL:
             return self._out([Block(samples, start_ns)])
         if self.mode is EchoMode.GATE:
-            if not self._gate.is_open(now_ns):
+            end_ns = start_ns + len(samples) * NS_PER_S // (sample_rate or self.sample_rate)
+            if not self._gate.admits(start_ns, end_ns, now_ns):
                 self.stats.blocks_gated += 1
                 self.stats.samples_gated += len(samples)
                 return []

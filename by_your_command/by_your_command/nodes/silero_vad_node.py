@@ -20,6 +20,7 @@ from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
+from by_your_command.audio.echo_gate import EchoGate
 from by_your_command.nodes._audio_msgs import int16_field, pcm_of
 from by_your_command.nodes._delivery import DeliveryCheck
 from by_your_command.nodes._params import declare_config
@@ -27,7 +28,6 @@ from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
 from by_your_command.vad.attention import Attention, AttentionState, PhraseCommand, PhraseMatcher
 from by_your_command.vad.config import VadConfig
 from by_your_command.vad.detector import VoiceDetector
-from by_your_command.vad.echo_gate import EchoGate
 from by_your_command.vad.model import SileroModel
 from by_your_command.vad.segmenter import Event, UtteranceChunk, VoiceActivity
 from by_your_command.vad.spoken_wake import (

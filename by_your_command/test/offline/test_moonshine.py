@@ -131,6 +131,9 @@ def _hearing(scorer: MoonshineScorer, sentence: str, monkeypatch: pytest.MonkeyP
     monkeypatch.setattr(scorer, "_step", _Heard(scorer.tokenizer, sentence).step)
 
 
+SILENCE = np.zeros(16000, dtype=np.float32)  # the stand-in decoder hears its sentence in anything
+
+
 @pytest.fixture
 def small_scorer() -> MoonshineScorer:
     return MoonshineScorer(["look up", "look up to the left", ("ten hut", "10 hut")])
@@ -140,15 +143,12 @@ def small_scorer() -> MoonshineScorer:
 def test_a_final_mark_ends_a_form_only_if_the_transcript_ends_after_it(
     small_scorer: MoonshineScorer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    silence = np.zeros(16000, dtype=np.float32)
     _hearing(small_scorer, "Look up.", monkeypatch)
-    assert (small_scorer.score(silence)[0].index, small_scorer.score(silence)[0].regret) == (
-        0,
-        pytest.approx(0.0),
-    )
+    best = small_scorer.score(SILENCE)[0]
+    assert (best.index, best.regret) == (0, pytest.approx(0.0))
     # "Look up. To the left.": a period, then more words. The period is no end of "look up".
     _hearing(small_scorer, "Look up. To the left.", monkeypatch)
-    scores = {score.index: score for score in small_scorer.score(silence)}
+    scores = {score.index: score for score in small_scorer.score(SILENCE)}
     assert scores[0].regret > 7.0
 
 
@@ -156,21 +156,19 @@ def test_a_final_mark_ends_a_form_only_if_the_transcript_ends_after_it(
 def test_the_free_transcript_comes_with_the_forms(
     small_scorer: MoonshineScorer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    silence = np.zeros(16000, dtype=np.float32)
     _hearing(small_scorer, "Reach for the stars.", monkeypatch)
-    analysis = small_scorer.analyse(silence)
+    analysis = small_scorer.analyse(SILENCE)
     assert analysis.free.text == "Reach for the stars."
     assert analysis.free.ended and analysis.free.logprob == pytest.approx(0.0, abs=0.01)
     assert analysis.forms and min(score.regret for score in analysis.forms) > 7.0
     _hearing(small_scorer, " ".join(["and then"] * 12), monkeypatch)
-    assert not small_scorer.analyse(silence).free.ended  # longer than any form: cut
+    assert not small_scorer.analyse(SILENCE).free.ended  # longer than any form: cut
 
 
 @pytest.mark.unit
 def test_a_form_scores_as_its_best_written_way(
     small_scorer: MoonshineScorer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    silence = np.zeros(16000, dtype=np.float32)
     _hearing(small_scorer, "10 hut", monkeypatch)  # how Moonshine often writes "ten hut"
-    best = small_scorer.score(silence)[0]
+    best = small_scorer.score(SILENCE)[0]
     assert (best.index, best.regret) == (2, pytest.approx(0.0))

@@ -1,4 +1,5 @@
-"""Half duplex in the VAD: audio heard while the robot spoke (and a tail after) is not the user.
+"""Half duplex: audio heard while the robot spoke (and a tail after) is not the user. Used by the
+VAD (`echo_gate`, the profiles' gate mode) and by echo_suppressor's `gate` mode.
 
 A block is judged by when it was captured (its stamp), not when it arrived: a block that waited
 in a queue while `assistant_speaking` changed still belongs to the moment it was heard. Stamps

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from by_your_command.vad.echo_gate import TRUSTED_STAMP_NS, EchoGate
+from by_your_command.audio.echo_gate import TRUSTED_STAMP_NS, EchoGate
 
 MS = 1_000_000
 T0 = 1_800_000_000_000_000_000  # an epoch-like clock: stamps are wall-clock capture times
