@@ -1129,14 +1129,10 @@ class AgentRuntime:
         """Every turn not yet answered, in order, into a new session: the first is committed at once;
         the others wait for the reply as they did before, each sending its audio at its own commit
         (one input buffer: audio sent now would be taken by the first commit)."""
-        first = self._waiting.popleft() if self._waiting else None
-        if first is not None:
-            first.deferred = False
-            if first.audio:
-                session.send(SendAudio(bytes(first.audio)))
-            self._commit(first)
-        for later in self._waiting:
-            later.deferred = True
+        for waiting in self._waiting:
+            waiting.deferred = True  # nothing of theirs is in the new session yet
+        if self._waiting:
+            self._commit(self._waiting.popleft())  # sends its audio, then commits
         speaking = self._turn_in
         if speaking is not None and not speaking.held:
             speaking.deferred = bool(self._waiting)

@@ -411,8 +411,7 @@ class EchoController:
         if self.mode is EchoMode.EXTERNAL:
             return self._out([Block(samples, start_ns)])
         if self.mode is EchoMode.GATE:
-            end_ns = start_ns + len(samples) * NS_PER_S // (sample_rate or self.sample_rate)
-            if not self._gate.admits(start_ns, end_ns, now_ns):
+            if not self._gate.admits(start_ns, len(samples), sample_rate or self.sample_rate, now_ns):
                 self.stats.blocks_gated += 1
                 self.stats.samples_gated += len(samples)
                 return []

@@ -14,6 +14,7 @@ from collections import deque
 # A stamp further than this from the arrival time is on another clock (or the block waited longer
 # than the VAD's input queue can hold: 64 blocks of 64 ms).
 TRUSTED_STAMP_NS = 5_000_000_000
+NS_PER_S = 1_000_000_000
 KEPT_SPELLS = 16  # speaking spells remembered: blocks are judged within seconds of their capture
 
 
@@ -37,8 +38,10 @@ class EchoGate:
             self._spells.append((start, now_ns))
         return speaking
 
-    def admits(self, start_ns: int, end_ns: int, now_ns: int) -> bool:
-        """Whether a block captured over [start_ns, end_ns) may hold the user (not the robot)."""
+    def admits(self, start_ns: int, samples: int, sample_rate: int, now_ns: int) -> bool:
+        """Whether a block of `samples` (all channels) captured from `start_ns` on may hold the
+        user, not the robot. The rate is not checked here (the caller does, for what it admits)."""
+        end_ns = start_ns + samples * NS_PER_S // max(sample_rate, 1)
         if not start_ns or abs(now_ns - end_ns) > TRUSTED_STAMP_NS:
             start_ns = end_ns = now_ns
         end_ns = max(end_ns, start_ns + 1)

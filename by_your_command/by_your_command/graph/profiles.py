@@ -137,16 +137,15 @@ def _recordings(options: GraphOptions, kind: str) -> str:
 
 def _drafts(chosen: Profile, options: GraphOptions) -> list[_Draft]:
     with_agents = chosen.agents is not Agents.NONE
+    drafts: list[_Draft] = []
+    vad: dict[str, Any] = {}
     if options.echo_mode == "aec":
-        drafts = [
-            _Draft("echo_suppressor", "echo_suppressor", "audio_io.yaml", {"mode": options.echo_mode}),
-            _Draft("silero_vad_node", "silero_vad_node", "vad.yaml"),
-        ]
+        drafts.append(_Draft("echo_suppressor", "echo_suppressor", "audio_io.yaml", {"mode": "aec"}))
     else:
         # gate and external need no echo_suppressor: the VAD reads `audio` and gates on
         # assistant_speaking itself (one process and one message per block less: ~1.5 % of a core).
         vad = {"input_topic": "audio", "echo_gate": options.echo_mode == "gate"}
-        drafts = [_Draft("silero_vad_node", "silero_vad_node", "vad.yaml", vad)]
+    drafts.append(_Draft("silero_vad_node", "silero_vad_node", "vad.yaml", vad))
     if with_agents:
         drafts.append(_Draft("clap_detector_node", "clap_detector_node", "vad.yaml"))
     if options.enable_voice_recorder:
@@ -171,8 +170,11 @@ def _drafts(chosen: Profile, options: GraphOptions) -> list[_Draft]:
         drafts.append(_Draft("frame_forwarder", "frame_forwarder"))
     # What listens to `audio`: a file source waits for all of it before playing. Not the clap
     # detector: it listens only while the robot is not awake.
-    listeners = sum(1 for d in drafts if d.name in ("echo_suppressor", "mic_recorder"))
-    listeners += int(options.echo_mode != "aec")  # the VAD
+    listeners = sum(
+        1
+        for d in drafts
+        if d.name in ("echo_suppressor", "mic_recorder") or d.parameters.get("input_topic") == "audio"
+    )
     if options.source_file:
         source = {
             "files": [options.source_file],

@@ -152,10 +152,9 @@ class SileroVadNode(Node):
     def _gated(self, msg: AudioChunk) -> bool:
         if self._gate is None:
             return False
-        start = _to_ns(msg.header.stamp)
-        rate = max(int(msg.sample_rate), 1) * max(int(msg.channels), 1)  # checked later, if admitted
-        end = start + len(msg.data) * NS_PER_S // rate
-        return not self._gate.admits(start, end, int(self.get_clock().now().nanoseconds))
+        rate = int(msg.sample_rate) * max(int(msg.channels), 1)  # per sample of len(msg.data)
+        now = int(self.get_clock().now().nanoseconds)
+        return not self._gate.admits(_to_ns(msg.header.stamp), len(msg.data), rate, now)
 
     def _on_audio(self, msg: AudioChunk) -> None:
         self._last_audio = time.monotonic()

@@ -10,8 +10,9 @@ MS = 1_000_000
 T0 = 1_800_000_000_000_000_000  # an epoch-like clock: stamps are wall-clock capture times
 
 
-def block(start_ms: float) -> tuple[int, int]:
-    return T0 + int(start_ms * MS), T0 + int((start_ms + 64) * MS)
+def block(start_ms: float) -> tuple[int, int, int]:
+    """A 64 ms block (1024 samples at 16 kHz) captured from T0 + start_ms on."""
+    return T0 + int(start_ms * MS), 1024, 16000
 
 
 @pytest.mark.unit
@@ -43,10 +44,10 @@ def test_a_block_stamped_across_the_start_of_a_spell_is_gated() -> None:
 def test_stamps_on_another_clock_are_judged_by_arrival(stamp: int) -> None:
     gate = EchoGate(tail_ms=300)
     gate.set_speaking(True, T0)
-    assert not gate.admits(stamp, stamp + 64 * MS, now_ns=T0 + 10 * MS)
+    assert not gate.admits(stamp, 1024, 16000, now_ns=T0 + 10 * MS)
     gate.set_speaking(False, T0 + 1000 * MS)
-    assert not gate.admits(stamp, stamp + 64 * MS, now_ns=T0 + 1200 * MS)  # in the tail
-    assert gate.admits(stamp, stamp + 64 * MS, now_ns=T0 + 1400 * MS)
+    assert not gate.admits(stamp, 1024, 16000, now_ns=T0 + 1200 * MS)  # in the tail
+    assert gate.admits(stamp, 1024, 16000, now_ns=T0 + 1400 * MS)
 
 
 @pytest.mark.unit
