@@ -4,10 +4,11 @@ nothing (rejected).
 The default search (`Search.MOONSHINE`) asks the Moonshine speech model (moonshine.py; its model
 ships in the moonshine-cpp wheel) how well each spoken form explains the noise-suppressed
 utterance (front_end.py), and accepts its best form when a free transcription would have written
-almost exactly that form, or nearly that form while ending where the model ends and clearly
-beating every other meaning; otherwise pocketsphinx is a second opinion (its grammar hearing the
-same meaning, or its verified form if Moonshine finds it near enough). Without the model it falls
-back to pocketsphinx alone (`Search.VERIFIED`, below).
+almost exactly that form. Otherwise pocketsphinx is a second opinion: it forced-aligns Moonshine's
+leading meanings to the audio, which reranks them (rescoring.py), and the reranked best is
+accepted when the evidence of both models is strong enough (RecognizerConfig); failing that, its
+verified form is taken if Moonshine finds it near enough. Without the model it falls back to
+pocketsphinx alone (`Search.VERIFIED`, below).
 
 pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
 the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
 import os
 import tempfile
 import threading
@@ -45,6 +47,7 @@ from by_your_command.offline.moonshine import (
     MoonshineConfig,
     MoonshineScorer,
 )
+from by_your_command.offline.rescoring import Alignment, Rescored, leading, rescore
 from by_your_command.offline.spoken import (
     RecognitionKind,
     SpokenForm,
@@ -59,6 +62,9 @@ log = logging.getLogger(__name__)
 DECODER_RATE = 16000  # the en-us acoustic model's rate (and Moonshine's)
 MIN_INPUT_RATE, MAX_INPUT_RATE = 8000, 48000
 GRAMMAR_SEARCH, FILLER_SEARCH = "grammar", "filler"
+# pocketsphinx keeps acoustic scores scaled down by 2**10 (SENSCR_SHIFT): this brings the log of a
+# hypothesis score back to natural-log units.
+SCORE_SCALE = 1024.0
 
 
 class Rejection(str, enum.Enum):
@@ -93,20 +99,31 @@ class RecognizerConfig:
     noise_suppression: NoiseSuppression = field(default_factory=NoiseSuppression)  # before Moonshine
     # Regret (moonshine.py): how far, in log probability summed over tokens, a form is from what
     # Moonshine would have written freely; its end regret is the part paid for ending there (the
-    # model heard more words). Moonshine's best form is accepted
-    # - up to accept_regret;
-    # - up to near_regret when it ends where the model ends (end regret at most end_regret) and
-    #   beats every form of another meaning by `margin` (log probability);
-    # - up to agree_regret when it ends where the model ends and the pocketsphinx grammar heard
-    #   the same meaning (two different recognizers agree);
-    # otherwise the pocketsphinx-verified form (grammar and filler model agree) up to
-    # confirm_regret. Tuned on other espeak voices than the benchmark's (docs/offline.md).
-    accept_regret: float = 2.0
-    near_regret: float = 4.0
+    # model heard more words). Moonshine's best form is accepted up to accept_regret. Otherwise
+    # its first `rescore_meanings` meanings are reranked by log probability + alignment_weight *
+    # pocketsphinx's alignment log score (rescoring.py), and the reranked best is accepted if it
+    # ends where the model ends (end regret at most end_regret) and
+    # - its regret is at most near_regret;
+    # - or at most agree_regret, and the pocketsphinx grammar heard the same meaning;
+    # - or at most aligned_regret, it aligns at least aligned_per_frame (nats per 10 ms frame) and
+    #   beats the next meaning by `margin`.
+    # Failing all that, the pocketsphinx-verified form (grammar and filler model agree) is taken if
+    # Moonshine finds that meaning within confirm_regret, again ending where the model ends.
+    # Wake/sleep/stop phrases are one or two words, so chat holding one ("I'm freezing", "what's
+    # up", "sleep well") is a word or two away from them: a phrase is taken only up to
+    # phrase_regret, and never on the alignment alone. Tuned on other espeak voices than the
+    # benchmark's (docs/offline.md).
+    accept_regret: float = 1.0
+    rescore_meanings: int = 4
+    alignment_weight: float = 0.04
     end_regret: float = 0.25
+    near_regret: float = 3.0
+    agree_regret: float = 9.0
+    aligned_regret: float = 6.0
+    aligned_per_frame: float = -1.6
     margin: float = 2.0
-    agree_regret: float = 7.0
-    confirm_regret: float = 10.0
+    confirm_regret: float = 12.0
+    phrase_regret: float = 6.0
     garbage: GarbageWeights = field(default_factory=GarbageWeights)
     language_weight: float = 6.5  # pocketsphinx `lw`: how much the model counts against the acoustics
     filler_words: tuple[str, ...] = FILLER_WORDS
@@ -124,10 +141,19 @@ class RecognizerConfig:
             raise ValueError("need 0 < min_utterance_s < max_utterance_s")
         if self.language_weight <= 0:
             raise ValueError("language_weight must be positive")
-        if not 0.0 <= self.accept_regret <= min(self.near_regret, self.agree_regret, self.confirm_regret):
-            raise ValueError("need 0 <= accept_regret <= near_regret, agree_regret and confirm_regret")
-        if self.end_regret < 0 or self.margin < 0:
-            raise ValueError("end_regret and margin must not be negative")
+        if (
+            not 0.0
+            <= self.accept_regret
+            <= min(self.near_regret, self.agree_regret, self.aligned_regret, self.confirm_regret)
+        ):
+            raise ValueError("need 0 <= accept_regret <= the near, agree, aligned and confirm regrets")
+        if self.rescore_meanings < 1:
+            raise ValueError("rescore_meanings must be at least 1")
+        values = (self.alignment_weight, self.end_regret, self.margin, self.aligned_per_frame)
+        if not all(math.isfinite(value) for value in values):
+            raise ValueError("alignment_weight, end_regret, margin and aligned_per_frame must be finite")
+        if self.alignment_weight < 0 or self.end_regret < 0 or self.margin < 0:
+            raise ValueError("alignment_weight, end_regret and margin must not be negative")
         if self.dither_rms < 0 or self.noise_tail_rms < 0 or self.noise_tail_s < 0:
             raise ValueError("dither and noise tail must not be negative")
 
@@ -247,64 +273,70 @@ class OfflineRecognizer:
         return Recognition(form.kind, form.words, form.canonical, confidence)
 
     def _moonshine(self, samples: Int16Array) -> Recognition:
-        """Moonshine's best form if it is (nearly) what Moonshine would write freely, or if the
-        pocketsphinx grammar heard the same; else the pocketsphinx-verified form (grammar and
-        filler model agree) if Moonshine does not find it far off (RecognizerConfig). Confidence
-        exp(-regret). pocketsphinx runs only when Moonshine alone is unsure."""
+        """Moonshine's best form if it is (nearly) what Moonshine would write freely; else its
+        leading meanings reranked with pocketsphinx alignments, or the pocketsphinx-verified form
+        (RecognizerConfig). Confidence exp(-regret). pocketsphinx runs only when Moonshine alone
+        is unsure."""
         assert self._scorer is not None
+        config = self.config
         with self._lock:
             analysis = self._scorer.analyse(self._moonshine_input(samples))
             self.stats.decoded += 1
-        chosen = self._moonshine_choice(analysis.forms)
+        forms = analysis.forms
         heard = f"heard {analysis.free.text!r}"
-        if chosen is None and analysis.forms:
-            best = analysis.forms[0]
+        if not forms:
+            return _rejected(Rejection.NOT_A_FORM, heard)
+        chosen: FormScore | None = forms[0] if forms[0].regret <= config.accept_regret else None
+        if chosen is None:
             audio = self._prepared(samples)
+            leaders = leading(forms, self._meaning, config.rescore_meanings)
+            alignments = [self._align(audio, self.forms[score.index].words) for score in leaders]
             grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
             form = self._by_words.get(grammar)
             heard += f", pocketsphinx {grammar!r}"
-            if self._agrees(best, form):
-                chosen = best
-            elif form is not None:
+            chosen = self._rescored_choice(rescore(leaders, alignments, config.alignment_weight), form)
+            if chosen is None and form is not None:
                 check, _ = self._decode(audio, FILLER_SEARCH)
                 confirmed = self._by_words.get(check)
                 if confirmed is not None and confirmed.canonical == form.canonical:
-                    same = [s for s in analysis.forms if self.forms[s.index].canonical == form.canonical]
-                    if same and min(s.regret for s in same) <= self.config.confirm_regret:
+                    meaning = (form.kind, form.canonical)
+                    same = [
+                        s for s in forms if self._meaning(s) == meaning and s.end_regret <= config.end_regret
+                    ]
+                    if same and min(s.regret for s in same) <= self._limit(form.kind, config.confirm_regret):
                         chosen = min(same, key=lambda s: s.regret)
         if chosen is None:
             return _rejected(Rejection.NOT_A_FORM, heard)
         form = self.forms[chosen.index]
         return Recognition(form.kind, form.words, form.canonical, float(np.exp(-chosen.regret)))
 
-    def _moonshine_choice(self, forms: list[FormScore]) -> FormScore | None:
-        """Moonshine's best form when Moonshine alone is sure enough of it, else None."""
+    def _rescored_choice(self, rescored: list[Rescored], grammar: SpokenForm | None) -> FormScore | None:
+        """The reranked best form if the evidence for it is strong enough (RecognizerConfig)."""
         config = self.config
-        if not forms:
+        if not rescored:
             return None
-        best = forms[0]
-        if best.regret <= config.accept_regret:
-            return best
-        meaning = self._meaning(best)
-        rival = max((s.logprob for s in forms if self._meaning(s) != meaning), default=-np.inf)
+        best = rescored[0]
+        score = best.score
+        if score.end_regret > config.end_regret:  # the model heard more words after it
+            return None
+        kind = self.forms[score.index].kind
+        agrees = grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score)
         if (
-            best.regret <= config.near_regret
-            and best.end_regret <= config.end_regret
-            and best.logprob - rival >= config.margin
+            score.regret <= config.near_regret
+            or (agrees and score.regret <= self._limit(kind, config.agree_regret))
+            or (
+                kind is not RecognitionKind.PHRASE
+                and score.regret <= config.aligned_regret
+                and best.alignment.per_frame >= config.aligned_per_frame
+                and best.margin >= config.margin
+            )
         ):
-            return best
+            return score
         return None
 
-    def _agrees(self, best: FormScore, grammar: SpokenForm | None) -> bool:
-        """Whether the pocketsphinx grammar's form means what Moonshine's best form means, and
-        that form is near enough and ends where the model ends."""
-        config = self.config
-        return (
-            grammar is not None
-            and (grammar.kind, grammar.canonical) == self._meaning(best)
-            and best.regret <= config.agree_regret
-            and best.end_regret <= config.end_regret
-        )
+    def _limit(self, kind: RecognitionKind, regret: float) -> float:
+        """A regret limit, lowered to phrase_regret for the short wake/sleep/stop phrases."""
+        return min(regret, self.config.phrase_regret) if kind is RecognitionKind.PHRASE else regret
 
     def _meaning(self, score: FormScore) -> tuple[RecognitionKind, str]:
         form = self.forms[score.index]
@@ -335,6 +367,21 @@ class OfflineRecognizer:
                 return "", 0.0
             confidence = float(decoder.get_prob())
         return " ".join(str(hypothesis.hypstr).split()), min(1.0, max(0.0, confidence))
+
+    def _align(self, audio: bytes, words: str) -> Alignment | None:
+        """pocketsphinx's forced alignment of `words` to the audio; None if they do not fit."""
+        with self._lock:
+            decoder = self._decoder
+            decoder.set_align_text(words)
+            decoder.start_utt()
+            decoder.process_raw(audio, False, True)
+            decoder.end_utt()
+            self.stats.decoded += 1
+            hypothesis = decoder.hyp()
+            frames = int(decoder.n_frames())
+        if hypothesis is None or not hypothesis.score > 0.0:
+            return None
+        return Alignment(SCORE_SCALE * math.log(hypothesis.score), frames)
 
 
 def _read_dictionary(path: str) -> dict[str, list[str]]:

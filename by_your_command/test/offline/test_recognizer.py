@@ -8,7 +8,9 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from by_your_command.offline.moonshine import FormScore
 from by_your_command.offline.recognizer import OfflineRecognizer, Rejection
+from by_your_command.offline.rescoring import Alignment, Rescored, leading, rescore
 from by_your_command.offline.spoken import RecognitionKind
 
 RATE = 16000
@@ -143,24 +145,82 @@ def _form(recognizer: OfflineRecognizer, words: str) -> int:
     return next(i for i, form in enumerate(recognizer.forms) if form.words == words)
 
 
+def _rescored(score: FormScore, per_frame: float = -1.0, margin: float = 5.0) -> Rescored:
+    return Rescored(score, Alignment(100 * per_frame, 100), score.logprob + 4 * per_frame, margin)
+
+
 @pytest.mark.unit
-def test_a_near_form_is_taken_only_if_it_ends_where_the_speech_ends_and_stands_out(
+def test_the_reranked_form_is_taken_only_if_it_ends_where_the_speech_ends_and_the_evidence_holds(
     recognizer: OfflineRecognizer,
 ) -> None:
-    from by_your_command.offline.moonshine import FormScore
+    look_up = _form(recognizer, "look up")
+    choose = recognizer._rescored_choice
+    assert choose([], None) is None
+    near = FormScore(look_up, -4.0, 2.5, end_regret=0.0)
+    assert choose([_rescored(near)], None) is near  # misheard a little, ends there
+    # "look up the answer": the words fit, but the model wanted to go on after "look up".
+    assert choose([_rescored(FormScore(look_up, -4.0, 2.5, end_regret=3.0))], None) is None
+    # further from what Moonshine wrote: taken if it aligns well and stands out ...
+    far = FormScore(look_up, -7.0, 5.5)
+    assert choose([_rescored(far, per_frame=-1.2, margin=3.0)], None) is far
+    assert choose([_rescored(far, per_frame=-2.5, margin=3.0)], None) is None  # aligns badly
+    assert choose([_rescored(far, per_frame=-1.2, margin=1.0)], None) is None  # a near tie
+    assert choose([_rescored(FormScore(look_up, -9.0, 7.5), per_frame=-1.0)], None) is None  # too far
 
-    stop, look, lookup = (_form(recognizer, w) for w in ("stop", "look out", "look up"))
-    choose = recognizer._moonshine_choice
-    assert choose([]) is None
-    sure = FormScore(stop, -1.0, 1.5)
-    assert choose([sure]) is sure  # nearly what Moonshine wrote
-    near = FormScore(stop, -4.0, 3.5, end_regret=0.0)
-    assert choose([near, FormScore(look, -9.0, 8.0)]) is near  # misheard a little, ends there
-    # "stop by later": the words fit, but the model wanted to go on after "stop".
-    assert choose([FormScore(stop, -4.0, 3.5, end_regret=3.0), FormScore(look, -9.0, 8.0)]) is None
-    # another meaning nearly as likely: too close to call
-    assert choose([FormScore(look, -4.0, 3.5), FormScore(lookup, -5.0, 4.5)]) is None
-    assert choose([FormScore(stop, -6.0, 5.0)]) is None  # too far from what was heard
+
+@pytest.mark.unit
+def test_a_form_the_grammar_heard_too_is_taken_further_from_the_free_transcript(
+    recognizer: OfflineRecognizer,
+) -> None:
+    index = _form(recognizer, "pan to the left")
+    pan_left, pan_right = recognizer.forms[index], recognizer.forms[_form(recognizer, "pan right")]
+    other_way = next(f for f in recognizer.forms if f.canonical == "pan@left" and f.words != pan_left.words)
+    choose = recognizer._rescored_choice
+    far = _rescored(FormScore(index, -10.0, 8.0, end_regret=0.0), per_frame=-3.0)
+    assert choose([far], None) is None  # alone, the evidence is too weak
+    assert choose([far], pan_left) is far.score and choose([far], other_way) is far.score  # either wording
+    assert choose([far], pan_right) is None
+    more_words = _rescored(FormScore(index, -10.0, 8.0, end_regret=1.0), per_frame=-3.0)
+    assert choose([more_words], pan_left) is None
+    assert choose([_rescored(FormScore(index, -12.0, 10.0), per_frame=-3.0)], pan_left) is None  # too far
+
+
+@pytest.mark.unit
+def test_a_phrase_needs_stronger_evidence_than_a_command(recognizer: OfflineRecognizer) -> None:
+    """Chat holding a phrase word ("I'm freezing", "what's up") is a word away from the phrase."""
+    freeze, look_up = _form(recognizer, "freeze"), _form(recognizer, "look up")
+    choose = recognizer._rescored_choice
+    aligned = (-1.2, 3.0)  # aligns well, stands out
+    assert choose([_rescored(FormScore(look_up, -7.0, 5.5), *aligned)], None) is not None
+    assert choose([_rescored(FormScore(freeze, -7.0, 5.5), *aligned)], None) is None  # not on alignment alone
+    heard_freeze = recognizer.forms[freeze]
+    assert choose([_rescored(FormScore(freeze, -7.0, 5.5), -3.0)], heard_freeze) is not None
+    assert (
+        choose([_rescored(FormScore(freeze, -9.0, 7.5), -3.0)], heard_freeze) is None
+    )  # beyond phrase_regret
+    assert choose([_rescored(FormScore(look_up, -9.0, 7.5), -3.0)], recognizer.forms[look_up]) is not None
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("text", "voice", "canonical"),
+    [("look up full right", "en-gb", "lookup@full-right"), ("move full left", "en-us", "move@full-left")],
+)
+def test_pocketsphinx_alignments_rerank_what_moonshine_misheard(
+    recognizer: OfflineRecognizer, synthesize: Synthesize, text: str, voice: str, canonical: str
+) -> None:
+    pcm = synthesize(text, voice)
+    samples = np.frombuffer(pcm, dtype="<i2").astype(np.int16)
+    forms = recognizer._scorer.analyse(recognizer._moonshine_input(samples)).forms  # type: ignore[union-attr]
+    meaning_of = recognizer._meaning
+    assert meaning_of(forms[0])[1] != canonical  # Moonshine alone: "forward" for "full right/left"
+    leaders = leading(forms, meaning_of, recognizer.config.rescore_meanings)
+    audio = recognizer._prepared(samples)
+    alignments = [recognizer._align(audio, recognizer.forms[score.index].words) for score in leaders]
+    reranked = rescore(leaders, alignments, recognizer.config.alignment_weight)
+    assert meaning_of(reranked[0].score)[1] == canonical
+    result = recognizer.recognize(pcm, RATE)
+    assert (result.kind, result.canonical) == (RecognitionKind.COMMAND, canonical), result
 
 
 @pytest.mark.unit
@@ -176,18 +236,27 @@ def test_moonshine_hears_the_utterance_noise_suppressed(recognizer: OfflineRecog
 
 
 @pytest.mark.unit
-def test_a_form_both_recognizers_heard_is_taken_further_from_the_free_transcript(
-    recognizer: OfflineRecognizer,
+def test_the_verified_form_is_taken_only_if_it_ends_where_the_speech_ends(
+    recognizer: OfflineRecognizer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from by_your_command.offline.moonshine import FormScore
+    """ "he reached the top": pocketsphinx's grammar and filler model both heard "sleep", and
+    Moonshine's "sleep" ends early (the model heard more words)."""
+    from by_your_command.offline.moonshine import Analysis, Transcript
 
-    index = _form(recognizer, "pan to the left")
-    pan_left, pan_right = recognizer.forms[index], recognizer.forms[_form(recognizer, "pan right")]
-    other_way = next(f for f in recognizer.forms if f.canonical == "pan@left" and f.words != pan_left.words)
-    agrees = recognizer._agrees
-    far = FormScore(index, -8.0, 6.0, end_regret=0.0)
-    assert recognizer._moonshine_choice([far]) is None  # alone, Moonshine is unsure
-    assert agrees(far, pan_left) and agrees(far, other_way)  # same meaning, either wording
-    assert not agrees(far, pan_right) and not agrees(far, None)
-    assert not agrees(FormScore(index, -8.0, 6.0, end_regret=1.0), pan_left)  # more words followed
-    assert not agrees(FormScore(index, -12.0, 9.0), pan_left)  # too far from what was heard
+    sleep = _form(recognizer, "sleep")
+    scorer = recognizer._scorer
+    assert scorer is not None
+    heard = {"grammar": "sleep time", "filler": "sleep"}
+    monkeypatch.setattr(recognizer, "_decode", lambda audio, search: (heard[search], 0.5))
+    monkeypatch.setattr(recognizer, "_align", lambda audio, words: None)  # no reranking
+    speech = (np.sin(np.arange(RATE) / 3.0) * 3000).astype("<i2").tobytes()
+
+    def decided(end_regret: float) -> RecognitionKind:
+        analysis = Analysis(
+            [FormScore(sleep, -6.0, 5.0, end_regret)], Transcript("He reached the top.", -3.0, True)
+        )
+        monkeypatch.setattr(scorer, "analyse", lambda audio: analysis)
+        return recognizer.recognize(speech, RATE).kind
+
+    assert decided(end_regret=2.9) is RecognitionKind.REJECTED
+    assert decided(end_regret=0.0) is RecognitionKind.PHRASE
