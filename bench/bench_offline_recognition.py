@@ -2,7 +2,8 @@
 
 Corpus, synthesized now with espeak-ng in voices the recognizer was NOT tuned on (tuning used
 other espeak voices and variants: en-us, en-gb, en-gb-scotland, en-gb-x-gbclan, en-gb-x-gbcwmd,
-en-us-nyc; variants m2-m5, f1, f2, f4, f5, klatt; other speeds and pitches): every command,
+en-us-nyc; variants m1-m5, f1, f2, f4, f5, klatt; other speeds and pitches; a second unseen
+set, run for docs/offline.md: --voices en-us+m6 en-gb+m8 en-us+Annie en-029+m3): every command,
 phrase and question of the vocabulary in up to two spoken forms (each form said by two of the
 held-out voices), and CHAT lines (small talk, questions, sentences
 holding command words, command words in other sentences), each clean and with white noise at --snr
