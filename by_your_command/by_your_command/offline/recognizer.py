@@ -141,17 +141,22 @@ class RecognizerConfig:
             raise ValueError("need 0 < min_utterance_s < max_utterance_s")
         if self.language_weight <= 0:
             raise ValueError("language_weight must be positive")
-        if (
-            not 0.0
-            <= self.accept_regret
-            <= min(self.near_regret, self.agree_regret, self.aligned_regret, self.confirm_regret)
-        ):
-            raise ValueError("need 0 <= accept_regret <= the near, agree, aligned and confirm regrets")
+        limits = (
+            self.near_regret,
+            self.agree_regret,
+            self.aligned_regret,
+            self.confirm_regret,
+            self.phrase_regret,
+        )
+        values = (self.accept_regret, *limits, self.alignment_weight, self.end_regret, self.margin)
+        if not all(math.isfinite(value) for value in (*values, self.aligned_per_frame)):
+            raise ValueError("the regret limits, weights and margins must be finite")
+        if not 0.0 <= self.accept_regret <= min(limits):
+            raise ValueError(
+                "need 0 <= accept_regret <= the near, agree, aligned, confirm and phrase regrets"
+            )
         if self.rescore_meanings < 1:
             raise ValueError("rescore_meanings must be at least 1")
-        values = (self.alignment_weight, self.end_regret, self.margin, self.aligned_per_frame)
-        if not all(math.isfinite(value) for value in values):
-            raise ValueError("alignment_weight, end_regret, margin and aligned_per_frame must be finite")
         if self.alignment_weight < 0 or self.end_regret < 0 or self.margin < 0:
             raise ValueError("alignment_weight, end_regret and margin must not be negative")
         if self.dither_rms < 0 or self.noise_tail_rms < 0 or self.noise_tail_s < 0:

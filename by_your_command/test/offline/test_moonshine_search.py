@@ -96,6 +96,10 @@ def test_thresholds_are_checked() -> None:
         RecognizerConfig(rescore_meanings=0)
     with pytest.raises(ValueError, match="finite"):
         RecognizerConfig(aligned_per_frame=float("nan"))
+    with pytest.raises(ValueError, match="finite"):
+        RecognizerConfig(phrase_regret=float("inf"))
+    with pytest.raises(ValueError, match="phrase"):
+        RecognizerConfig(phrase_regret=0.5)
     with pytest.raises(ValueError, match="negative"):
         RecognizerConfig(alignment_weight=-1.0)
     with pytest.raises(ValueError, match="positive"):
