@@ -3,12 +3,12 @@ nothing (rejected).
 
 The default search (`Search.MOONSHINE`) asks the Moonshine speech model (moonshine.py; its model
 ships in the moonshine-cpp wheel) how well each spoken form explains the noise-suppressed
-utterance (front_end.py), and accepts its best form when a free transcription would have written
-almost exactly that form. Otherwise pocketsphinx is a second opinion: it forced-aligns Moonshine's
-leading meanings to the audio, which reranks them (rescoring.py), and the reranked best is
-accepted when the evidence of both models is strong enough (RecognizerConfig); failing that, its
-verified form is taken if Moonshine finds it near enough. Without the model it falls back to
-pocketsphinx alone (`Search.VERIFIED`, below).
+utterance (front_end.py). pocketsphinx is a second opinion: it forced-aligns Moonshine's leading
+meanings to the audio, which reranks them (rescoring.py), and the reranked best is accepted when
+the evidence of both models is strong enough (RecognizerConfig); failing that, Moonshine's best
+form if a free transcription would have written almost exactly that form, or pocketsphinx's
+verified form if Moonshine finds it near enough. Without the model it falls back to pocketsphinx
+alone (`Search.VERIFIED`, below).
 
 pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
 the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
@@ -99,16 +99,16 @@ class RecognizerConfig:
     noise_suppression: NoiseSuppression = field(default_factory=NoiseSuppression)  # before Moonshine
     # Regret (moonshine.py): how far, in log probability summed over tokens, a form is from what
     # Moonshine would have written freely; its end regret is the part paid for ending there (the
-    # model heard more words). Moonshine's best form is accepted up to accept_regret. Otherwise
-    # its first `rescore_meanings` meanings are reranked by log probability + alignment_weight *
-    # pocketsphinx's alignment log score (rescoring.py), and the reranked best is accepted if it
-    # ends where the model ends (end regret at most end_regret) and
+    # model heard more words). Moonshine's first `rescore_meanings` meanings are reranked by log
+    # probability + alignment_weight * pocketsphinx's alignment log score (rescoring.py), and the
+    # reranked best is accepted if it ends where the model ends (end regret at most end_regret) and
     # - its regret is at most near_regret;
     # - or at most agree_regret, and the pocketsphinx grammar heard the same meaning;
     # - or at most aligned_regret, it aligns at least aligned_per_frame (nats per 10 ms frame) and
     #   beats the next meaning by `margin`.
-    # Failing all that, the pocketsphinx-verified form (grammar and filler model agree) is taken if
-    # Moonshine finds that meaning within confirm_regret, again ending where the model ends.
+    # Failing all that, Moonshine's best form is taken up to accept_regret, or else the
+    # pocketsphinx-verified form (grammar and filler model agree) if Moonshine finds that meaning
+    # within confirm_regret, again ending where the model ends.
     # Wake/sleep/stop phrases are one or two words, so chat holding one ("I'm freezing", "what's
     # up", "sleep well") is a word or two away from them: a phrase is taken only up to
     # phrase_regret, and never on the alignment alone. Tuned on other espeak voices than the
@@ -278,10 +278,10 @@ class OfflineRecognizer:
         return Recognition(form.kind, form.words, form.canonical, confidence)
 
     def _moonshine(self, samples: Int16Array) -> Recognition:
-        """Moonshine's best form if it is (nearly) what Moonshine would write freely; else its
-        leading meanings reranked with pocketsphinx alignments, or the pocketsphinx-verified form
-        (RecognizerConfig). Confidence exp(-regret). pocketsphinx runs only when Moonshine alone
-        is unsure."""
+        """Moonshine's leading meanings reranked with pocketsphinx alignments; the reranked best if
+        the evidence for it holds, else Moonshine's best form if it is (nearly) what Moonshine
+        would write freely, else the pocketsphinx-verified form (RecognizerConfig). Confidence
+        exp(-regret)."""
         assert self._scorer is not None
         config = self.config
         with self._lock:
@@ -291,25 +291,25 @@ class OfflineRecognizer:
         heard = f"heard {analysis.free.text!r}"
         if not forms:
             return _rejected(Rejection.NOT_A_FORM, heard)
-        chosen: FormScore | None = forms[0] if forms[0].regret <= config.accept_regret else None
-        if chosen is None:
-            audio = self._prepared(samples)
-            leaders = leading(forms, self._meaning, config.rescore_meanings)
-            alignments = [self._align(audio, self.forms[score.index].words) for score in leaders]
-            grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
-            form = self._by_words.get(grammar)
-            heard += f", pocketsphinx {grammar!r}"
-            chosen = self._rescored_choice(rescore(leaders, alignments, config.alignment_weight), form)
-            if chosen is None and form is not None:
-                check, _ = self._decode(audio, FILLER_SEARCH)
-                confirmed = self._by_words.get(check)
-                if confirmed is not None and confirmed.canonical == form.canonical:
-                    meaning = (form.kind, form.canonical)
-                    same = [
-                        s for s in forms if self._meaning(s) == meaning and s.end_regret <= config.end_regret
-                    ]
-                    if same and min(s.regret for s in same) <= self._limit(form.kind, config.confirm_regret):
-                        chosen = min(same, key=lambda s: s.regret)
+        audio = self._prepared(samples)
+        leaders = leading(forms, self._meaning, config.rescore_meanings)
+        alignments = [self._align(audio, self.forms[score.index].words) for score in leaders]
+        grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
+        form = self._by_words.get(grammar)
+        heard += f", pocketsphinx {grammar!r}"
+        # Even a form Moonshine is sure of gives way to another meaning the alignments put first
+        # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
+        chosen = self._rescored_choice(rescore(leaders, alignments, config.alignment_weight), form)
+        if chosen is None and forms[0].regret <= config.accept_regret:
+            chosen = forms[0]
+        if chosen is None and form is not None:
+            check, _ = self._decode(audio, FILLER_SEARCH)
+            confirmed = self._by_words.get(check)
+            if confirmed is not None and confirmed.canonical == form.canonical:
+                meaning = (form.kind, form.canonical)
+                same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= config.end_regret]
+                if same and min(s.regret for s in same) <= self._limit(form.kind, config.confirm_regret):
+                    chosen = min(same, key=lambda s: s.regret)
         if chosen is None:
             return _rejected(Rejection.NOT_A_FORM, heard)
         form = self.forms[chosen.index]

@@ -204,7 +204,11 @@ def test_a_phrase_needs_stronger_evidence_than_a_command(recognizer: OfflineReco
 @pytest.mark.unit
 @pytest.mark.parametrize(
     ("text", "voice", "canonical"),
-    [("look up full right", "en-gb", "lookup@full-right"), ("move full left", "en-us", "move@full-left")],
+    [
+        ("look up full right", "en-gb", "lookup@full-right"),
+        ("move full left", "en-us", "move@full-left"),
+        ("move full right", "en-us", "move@full-right"),  # Moonshine: "Move forward", and sure of it
+    ],
 )
 def test_pocketsphinx_alignments_rerank_what_moonshine_misheard(
     recognizer: OfflineRecognizer, synthesize: Synthesize, text: str, voice: str, canonical: str
@@ -260,3 +264,14 @@ def test_the_verified_form_is_taken_only_if_it_ends_where_the_speech_ends(
 
     assert decided(end_regret=2.9) is RecognitionKind.REJECTED
     assert decided(end_regret=0.0) is RecognitionKind.PHRASE
+
+
+@pytest.mark.unit
+def test_a_form_moonshine_is_sure_of_gives_way_to_a_meaning_that_aligns_much_better(
+    recognizer: OfflineRecognizer, synthesize: Synthesize
+) -> None:
+    pcm = synthesize("move full right", "en-us")
+    samples = np.frombuffer(pcm, dtype="<i2").astype(np.int16)
+    best = recognizer._scorer.analyse(recognizer._moonshine_input(samples)).forms[0]  # type: ignore[union-attr]
+    assert recognizer._meaning(best)[1] == "move@forward" and best.regret <= recognizer.config.accept_regret
+    assert recognizer.recognize(pcm, RATE).canonical == "move@full-right"
