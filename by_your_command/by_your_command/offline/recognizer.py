@@ -361,32 +361,32 @@ class OfflineRecognizer:
 
     def _decode(self, audio: bytes, search: str) -> tuple[str, float]:
         with self._lock:
-            decoder = self._decoder
-            decoder.activate_search(search)
-            decoder.start_utt()
-            decoder.process_raw(audio, False, True)
-            decoder.end_utt()
-            self.stats.decoded += 1
-            hypothesis = decoder.hyp()
+            self._decoder.activate_search(search)
+            hypothesis = self._run(audio)
             if hypothesis is None:
                 return "", 0.0
-            confidence = float(decoder.get_prob())
+            confidence = float(self._decoder.get_prob())
         return " ".join(str(hypothesis.hypstr).split()), min(1.0, max(0.0, confidence))
 
     def _align(self, audio: bytes, words: str) -> Alignment | None:
         """pocketsphinx's forced alignment of `words` to the audio; None if they do not fit."""
         with self._lock:
-            decoder = self._decoder
-            decoder.set_align_text(words)
-            decoder.start_utt()
-            decoder.process_raw(audio, False, True)
-            decoder.end_utt()
-            self.stats.decoded += 1
-            hypothesis = decoder.hyp()
-            frames = int(decoder.n_frames())
+            self._decoder.set_align_text(words)
+            hypothesis = self._run(audio)
+            frames = int(self._decoder.n_frames())
         if hypothesis is None or not hypothesis.score > 0.0:
             return None
         return Alignment(SCORE_SCALE * math.log(hypothesis.score), frames)
+
+    def _run(self, audio: bytes) -> Any:
+        """One utterance through the decoder's current search; its hypothesis or None. The caller
+        holds the lock."""
+        decoder = self._decoder
+        decoder.start_utt()
+        decoder.process_raw(audio, False, True)
+        decoder.end_utt()
+        self.stats.decoded += 1
+        return decoder.hyp()
 
 
 def _read_dictionary(path: str) -> dict[str, list[str]]:
