@@ -1,21 +1,30 @@
-"""Noise suppression before the speech model: a Wiener filter with the noise taken from the
-utterance's own quietest frames.
+"""Noise suppression before the speech model, with the noise taken from the utterance's own
+quietest frames, and the utterance's signal-to-noise ratio as a by-product.
 
 A VAD utterance carries some background before and between the words (pre-roll, pauses). The
 noise power spectrum is estimated as the mean over the quietest `noise_fraction` of the STFT frames
-(a minimum-statistics estimate: no separate noise recording is needed), and each time-frequency
-bin is scaled by the Wiener gain 1 - over_subtraction * noise / power, floored at `floor` so that
-no bin is silenced outright (which would add "musical" artefacts). On clean audio the quietest
-frames hold almost nothing and the gain is ~1 everywhere: the filter leaves clean speech as it is.
-Audio whose quietest frames are nearly as loud as its typical frame (no pause to learn the
-background from) is left as it is too.
+(a minimum-statistics estimate: no separate noise recording is needed). Each time-frequency bin is
+then scaled by a Wiener gain xi / (1 + xi) whose a-priori SNR xi is estimated "decision-directed"
+(Ephraim and Malah): mostly the previous frame's cleaned power, a little this frame's excess over
+the noise. The smoothing over time keeps the gain from flickering bin by bin, which is what turns
+the residual noise of a plain Wiener filter into "musical" tones that a speech model mistakes for
+sounds. The gain is floored at `floor` so that no bin is silenced outright. On clean audio the
+quietest frames hold almost nothing and the gain is ~1 everywhere: clean speech passes as it is.
+Audio whose loudest frames are hardly louder than its quietest (no pause to learn the background
+from) is left as it is too.
 
-Measured (tuning voices, white noise at 15 dB SNR): Moonshine's best form was the right one for
-47 of 60 commands with the filter, 43 without; clean speech unchanged (docs/offline.md).
+The "anything to learn from" check compares the loudest frames, not the typical one: in a short
+command at 15 dB SNR most frames are pre-roll, pauses and weak sounds, so the median frame is
+barely above the noise (an earlier median check skipped almost every noisy utterance).
+
+Measured (tuning voices, white noise at 15 dB SNR, 223 commands; docs/offline.md): Moonshine's
+best form was the right meaning for 77.1 % with this filter, 74.0 % with a plain Wiener filter,
+72.2 % unfiltered; clean speech unchanged.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,37 +33,67 @@ from scipy.signal import istft, stft
 
 FloatArray = npt.NDArray[np.float32]
 FRAME, HOP = 512, 128  # 32 ms frames every 8 ms at 16 kHz
+LOUD_PERCENTILE = 90  # "the speech": frames louder than this share of the utterance's frames
+NO_BACKGROUND_DB = 99.0  # the SNR reported when the background is digital silence
 
 
 @dataclass(frozen=True)
 class NoiseSuppression:
     enabled: bool = True
-    over_subtraction: float = 2.0  # noise power counted this many times (1-3 is usual)
+    smoothing: float = 0.98  # weight of the previous frame in the a-priori SNR (0.9-0.99 is usual)
     floor: float = 0.1  # the least gain of any bin
     noise_fraction: float = 0.1  # the quietest share of frames taken as noise
-    # Filtered only when the median frame is this much louder than the noise estimate: audio
+    # Filtered only when the loud frames are this much louder than the noise estimate: audio
     # without quieter stretches (no pause, no pre-roll) has no background to learn from.
     min_range_db: float = 6.0
 
     def __post_init__(self) -> None:
-        if self.over_subtraction <= 0 or not 0 < self.floor <= 1 or not 0 < self.noise_fraction < 1:
-            raise ValueError("need over_subtraction > 0, 0 < floor <= 1 and 0 < noise_fraction < 1")
+        if not 0 <= self.smoothing < 1 or not 0 < self.floor <= 1 or not 0 < self.noise_fraction < 1:
+            raise ValueError("need 0 <= smoothing < 1, 0 < floor <= 1 and 0 < noise_fraction < 1")
+        if not math.isfinite(self.min_range_db):
+            raise ValueError("min_range_db must be finite")
 
 
-def suppress_noise(audio: FloatArray, config: NoiseSuppression, rate: int = 16000) -> FloatArray:
-    """The audio with its stationary background reduced; same length. Audio too short for a few
+@dataclass(frozen=True)
+class Cleaned:
+    audio: FloatArray  # same length as the input
+    # The loud frames' power over the background's, in dB (NO_BACKGROUND_DB for a silent
+    # background, 0.0 for audio too short to tell): how noisy the utterance is.
+    snr_db: float
+
+
+def suppress_noise(audio: FloatArray, config: NoiseSuppression, rate: int = 16000) -> Cleaned:
+    """The audio with its stationary background reduced, and its SNR. Audio too short for a few
     frames is returned as it is."""
-    if not config.enabled or len(audio) < 4 * FRAME:
-        return audio
+    if len(audio) < 4 * FRAME:
+        return Cleaned(audio, 0.0)
     _, _, spectrum = stft(audio, rate, nperseg=FRAME, noverlap=FRAME - HOP)
     power = np.abs(spectrum) ** 2
-    frames = power.shape[1]
-    quietest = np.argsort(power.sum(axis=0))[: max(3, int(frames * config.noise_fraction))]
-    noise = power[:, quietest].mean(axis=1, keepdims=True)
-    if float(np.median(power.sum(axis=0))) < float(noise.sum()) * 10 ** (config.min_range_db / 10):
-        return audio
-    gain = np.maximum(1.0 - config.over_subtraction * noise / np.maximum(power, 1e-20), config.floor)
+    frame_power = power.sum(axis=0)
+    quietest = np.argsort(frame_power)[: max(3, int(len(frame_power) * config.noise_fraction))]
+    noise = power[:, quietest].mean(axis=1)
+    loud, background = float(np.percentile(frame_power, LOUD_PERCENTILE)), float(noise.sum())
+    if background <= 1e-12:  # digital silence between the words: nothing to remove
+        return Cleaned(audio, NO_BACKGROUND_DB)
+    snr_db = 10 * math.log10(max(loud, 1e-30) / background)
+    if not config.enabled or snr_db < config.min_range_db:
+        return Cleaned(audio, snr_db)
+    gain = _decision_directed_gain(power, np.maximum(noise, 1e-20), config)
     _, filtered = istft(spectrum * gain, rate, nperseg=FRAME, noverlap=FRAME - HOP)
     out = np.zeros_like(audio)
     out[: min(len(audio), len(filtered))] = filtered[: len(audio)]
-    return out.astype(np.float32)
+    return Cleaned(out.astype(np.float32), snr_db)
+
+
+def _decision_directed_gain(
+    power: npt.NDArray[np.float64], noise: npt.NDArray[np.float64], config: NoiseSuppression
+) -> npt.NDArray[np.float64]:
+    """Wiener gains per bin and frame, the a-priori SNR smoothed over time (frames in order)."""
+    gain = np.empty_like(power)
+    cleaned_before = np.zeros_like(noise)  # the previous frame's cleaned power
+    for frame in range(power.shape[1]):
+        excess = np.maximum(power[:, frame] / noise - 1.0, 0.0)
+        prior = config.smoothing * cleaned_before / noise + (1 - config.smoothing) * excess
+        gain[:, frame] = np.maximum(prior / (1.0 + prior), config.floor)
+        cleaned_before = gain[:, frame] ** 2 * power[:, frame]
+    return gain

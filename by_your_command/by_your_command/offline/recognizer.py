@@ -5,10 +5,10 @@ The default search (`Search.MOONSHINE`) asks the Moonshine speech model (moonshi
 ships in the moonshine-cpp wheel) how well each spoken form explains the noise-suppressed
 utterance (front_end.py). pocketsphinx is a second opinion: it forced-aligns Moonshine's leading
 meanings to the audio, which reranks them (rescoring.py), and the reranked best is accepted when
-the evidence of both models is strong enough (RecognizerConfig); failing that, Moonshine's best
-form if a free transcription would have written almost exactly that form, or pocketsphinx's
-verified form if Moonshine finds it near enough. Without the model it falls back to pocketsphinx
-alone (`Search.VERIFIED`, below).
+the evidence of both models is strong enough (acceptance.py: looser limits for a noisy
+utterance); failing that, Moonshine's best form if a free transcription would have written almost
+exactly that form, or pocketsphinx's verified form if Moonshine finds it near enough. Without the
+model it falls back to pocketsphinx alone (`Search.VERIFIED`, below).
 
 pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
 the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
@@ -38,8 +38,9 @@ import numpy as np
 
 from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
+from by_your_command.offline.acceptance import Acceptance, AcceptLimits
 from by_your_command.offline.filler_words import FILLER_WORDS
-from by_your_command.offline.front_end import FloatArray, NoiseSuppression, suppress_noise
+from by_your_command.offline.front_end import Cleaned, NoiseSuppression, suppress_noise
 from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
 from by_your_command.offline.moonshine import (
     FormScore,
@@ -97,33 +98,7 @@ class RecognizerConfig:
     search: Search = Search.MOONSHINE
     moonshine: MoonshineConfig = field(default_factory=MoonshineConfig)
     noise_suppression: NoiseSuppression = field(default_factory=NoiseSuppression)  # before Moonshine
-    # Regret (moonshine.py): how far, in log probability summed over tokens, a form is from what
-    # Moonshine would have written freely; its end regret is the part paid for ending there (the
-    # model heard more words). Moonshine's first `rescore_meanings` meanings are reranked by log
-    # probability + alignment_weight * pocketsphinx's alignment log score (rescoring.py), and the
-    # reranked best is accepted if it ends where the model ends (end regret at most end_regret) and
-    # - its regret is at most near_regret;
-    # - or at most agree_regret, and the pocketsphinx grammar heard the same meaning;
-    # - or at most aligned_regret, it aligns at least aligned_per_frame (nats per 10 ms frame) and
-    #   beats the next meaning by `margin`.
-    # Failing all that, Moonshine's best form is taken up to accept_regret, or else the
-    # pocketsphinx-verified form (grammar and filler model agree) if Moonshine finds that meaning
-    # within confirm_regret, again ending where the model ends.
-    # Wake/sleep/stop phrases are one or two words, so chat holding one ("I'm freezing", "what's
-    # up", "sleep well") is a word or two away from them: a phrase is taken only up to
-    # phrase_regret, and never on the alignment alone. Tuned on other espeak voices than the
-    # benchmark's (docs/offline.md).
-    accept_regret: float = 1.0
-    rescore_meanings: int = 4
-    alignment_weight: float = 0.04
-    end_regret: float = 0.25
-    near_regret: float = 3.0
-    agree_regret: float = 9.0
-    aligned_regret: float = 6.0
-    aligned_per_frame: float = -1.6
-    margin: float = 2.0
-    confirm_regret: float = 12.0
-    phrase_regret: float = 6.0
+    acceptance: Acceptance = field(default_factory=Acceptance)  # when a form is taken (acceptance.py)
     garbage: GarbageWeights = field(default_factory=GarbageWeights)
     language_weight: float = 6.5  # pocketsphinx `lw`: how much the model counts against the acoustics
     filler_words: tuple[str, ...] = FILLER_WORDS
@@ -141,24 +116,6 @@ class RecognizerConfig:
             raise ValueError("need 0 < min_utterance_s < max_utterance_s")
         if self.language_weight <= 0:
             raise ValueError("language_weight must be positive")
-        limits = (
-            self.near_regret,
-            self.agree_regret,
-            self.aligned_regret,
-            self.confirm_regret,
-            self.phrase_regret,
-        )
-        values = (self.accept_regret, *limits, self.alignment_weight, self.end_regret, self.margin)
-        if not all(math.isfinite(value) for value in (*values, self.aligned_per_frame)):
-            raise ValueError("the regret limits, weights and margins must be finite")
-        if not 0.0 <= self.accept_regret <= min(limits):
-            raise ValueError(
-                "need 0 <= accept_regret <= the near, agree, aligned, confirm and phrase regrets"
-            )
-        if self.rescore_meanings < 1:
-            raise ValueError("rescore_meanings must be at least 1")
-        if self.alignment_weight < 0 or self.end_regret < 0 or self.margin < 0:
-            raise ValueError("alignment_weight, end_regret and margin must not be negative")
         if self.dither_rms < 0 or self.noise_tail_rms < 0 or self.noise_tail_s < 0:
             raise ValueError("dither and noise tail must not be negative")
 
@@ -177,6 +134,11 @@ class RecognizerStats:
     decoded: int = 0
     by_kind: Counter[str] = field(default_factory=Counter)
     rejections: Counter[str] = field(default_factory=Counter)
+
+
+def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
+    """A regret limit, lowered to phrase_regret for the short wake/sleep/stop phrases."""
+    return min(regret, limits.phrase_regret) if kind is RecognitionKind.PHRASE else regret
 
 
 def _rejected(reason: Rejection, text: str = "") -> Recognition:
@@ -280,75 +242,78 @@ class OfflineRecognizer:
     def _moonshine(self, samples: Int16Array) -> Recognition:
         """Moonshine's leading meanings reranked with pocketsphinx alignments; the reranked best if
         the evidence for it holds, else Moonshine's best form if it is (nearly) what Moonshine
-        would write freely, else the pocketsphinx-verified form (RecognizerConfig). Confidence
-        exp(-regret)."""
+        would write freely, else the pocketsphinx-verified form (acceptance.py, with the noisy
+        limits when the utterance is noisy). Confidence exp(-regret)."""
         assert self._scorer is not None
-        config = self.config
+        acceptance = self.config.acceptance
+        cleaned = self._moonshine_input(samples)
+        limits = acceptance.limits(cleaned.snr_db)
         with self._lock:
-            analysis = self._scorer.analyse(self._moonshine_input(samples))
+            analysis = self._scorer.analyse(cleaned.audio)
             self.stats.decoded += 1
         forms = analysis.forms
         heard = f"heard {analysis.free.text!r}"
         if not forms:
             return _rejected(Rejection.NOT_A_FORM, heard)
         audio = self._prepared(samples)
-        leaders = leading(forms, self._meaning, config.rescore_meanings)
+        leaders = leading(forms, self._meaning, acceptance.rescore_meanings)
         alignments = [self._align(audio, self.forms[score.index].words) for score in leaders]
         grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
         form = self._by_words.get(grammar)
         heard += f", pocketsphinx {grammar!r}"
         # Even a form Moonshine is sure of gives way to another meaning the alignments put first
         # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
-        chosen = self._rescored_choice(rescore(leaders, alignments, config.alignment_weight), form)
-        if chosen is None and forms[0].regret <= config.accept_regret:
+        rescored = rescore(leaders, alignments, acceptance.alignment_weight)
+        chosen = self._rescored_choice(rescored, form, limits)
+        if chosen is None and forms[0].regret <= limits.accept_regret:
             chosen = forms[0]
         if chosen is None and form is not None:
             check, _ = self._decode(audio, FILLER_SEARCH)
             confirmed = self._by_words.get(check)
             if confirmed is not None and confirmed.canonical == form.canonical:
                 meaning = (form.kind, form.canonical)
-                same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= config.end_regret]
-                if same and min(s.regret for s in same) <= self._limit(form.kind, config.confirm_regret):
+                same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= limits.end_regret]
+                if same and min(s.regret for s in same) <= _limit(form.kind, limits.confirm_regret, limits):
                     chosen = min(same, key=lambda s: s.regret)
         if chosen is None:
             return _rejected(Rejection.NOT_A_FORM, heard)
         form = self.forms[chosen.index]
         return Recognition(form.kind, form.words, form.canonical, float(np.exp(-chosen.regret)))
 
-    def _rescored_choice(self, rescored: list[Rescored], grammar: SpokenForm | None) -> FormScore | None:
-        """The reranked best form if the evidence for it is strong enough (RecognizerConfig)."""
-        config = self.config
+    def _rescored_choice(
+        self, rescored: list[Rescored], grammar: SpokenForm | None, limits: AcceptLimits
+    ) -> FormScore | None:
+        """The reranked best form if the evidence for it is strong enough (acceptance.py)."""
         if not rescored:
             return None
         best = rescored[0]
         score = best.score
-        if score.end_regret > config.end_regret:  # the model heard more words after it
+        if score.end_regret > limits.end_regret:  # the model heard more words after it
             return None
         kind = self.forms[score.index].kind
         agrees = grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score)
+        # A phrase on Moonshine's word alone only if it is nearly what Moonshine wrote: in noise
+        # "what's up" is "wake up" at regret 1.1.
+        near = limits.accept_regret if kind is RecognitionKind.PHRASE else limits.near_regret
         if (
-            score.regret <= config.near_regret
-            or (agrees and score.regret <= self._limit(kind, config.agree_regret))
+            score.regret <= near
+            or (agrees and score.regret <= _limit(kind, limits.agree_regret, limits))
             or (
                 kind is not RecognitionKind.PHRASE
-                and score.regret <= config.aligned_regret
-                and best.alignment.per_frame >= config.aligned_per_frame
-                and best.margin >= config.margin
+                and score.regret <= limits.aligned_regret
+                and best.alignment.per_frame >= limits.aligned_per_frame
+                and best.margin >= limits.margin
             )
         ):
             return score
         return None
 
-    def _limit(self, kind: RecognitionKind, regret: float) -> float:
-        """A regret limit, lowered to phrase_regret for the short wake/sleep/stop phrases."""
-        return min(regret, self.config.phrase_regret) if kind is RecognitionKind.PHRASE else regret
-
     def _meaning(self, score: FormScore) -> tuple[RecognitionKind, str]:
         form = self.forms[score.index]
         return form.kind, form.canonical
 
-    def _moonshine_input(self, samples: Int16Array) -> FloatArray:
-        """Moonshine's input: float audio, noise suppressed (front_end.py)."""
+    def _moonshine_input(self, samples: Int16Array) -> Cleaned:
+        """Moonshine's input: float audio, noise suppressed (front_end.py), and its SNR."""
         return suppress_noise(samples.astype(np.float32) / 32768.0, self.config.noise_suppression)
 
     def _prepared(self, samples: Int16Array) -> bytes:

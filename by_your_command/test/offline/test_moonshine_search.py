@@ -89,18 +89,6 @@ def test_without_the_model_it_falls_back_to_pocketsphinx_and_says_so(
 
 
 @pytest.mark.unit
-def test_thresholds_are_checked() -> None:
-    with pytest.raises(ValueError, match="accept_regret"):
-        RecognizerConfig(accept_regret=5.0, confirm_regret=1.0)
-    with pytest.raises(ValueError, match="rescore_meanings"):
-        RecognizerConfig(rescore_meanings=0)
-    with pytest.raises(ValueError, match="finite"):
-        RecognizerConfig(aligned_per_frame=float("nan"))
-    with pytest.raises(ValueError, match="finite"):
-        RecognizerConfig(phrase_regret=float("inf"))
-    with pytest.raises(ValueError, match="phrase"):
-        RecognizerConfig(phrase_regret=0.5)
-    with pytest.raises(ValueError, match="negative"):
-        RecognizerConfig(alignment_weight=-1.0)
+def test_moonshine_settings_are_checked() -> None:
     with pytest.raises(ValueError, match="positive"):
         MoonshineConfig(beam=0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -154,7 +155,7 @@ def test_the_reranked_form_is_taken_only_if_it_ends_where_the_speech_ends_and_th
     recognizer: OfflineRecognizer,
 ) -> None:
     look_up = _form(recognizer, "look up")
-    choose = recognizer._rescored_choice
+    choose = functools.partial(recognizer._rescored_choice, limits=recognizer.config.acceptance.clean)
     assert choose([], None) is None
     near = FormScore(look_up, -4.0, 2.5, end_regret=0.0)
     assert choose([_rescored(near)], None) is near  # misheard a little, ends there
@@ -175,7 +176,7 @@ def test_a_form_the_grammar_heard_too_is_taken_further_from_the_free_transcript(
     index = _form(recognizer, "pan to the left")
     pan_left, pan_right = recognizer.forms[index], recognizer.forms[_form(recognizer, "pan right")]
     other_way = next(f for f in recognizer.forms if f.canonical == "pan@left" and f.words != pan_left.words)
-    choose = recognizer._rescored_choice
+    choose = functools.partial(recognizer._rescored_choice, limits=recognizer.config.acceptance.clean)
     far = _rescored(FormScore(index, -10.0, 8.0, end_regret=0.0), per_frame=-3.0)
     assert choose([far], None) is None  # alone, the evidence is too weak
     assert choose([far], pan_left) is far.score and choose([far], other_way) is far.score  # either wording
@@ -189,10 +190,14 @@ def test_a_form_the_grammar_heard_too_is_taken_further_from_the_free_transcript(
 def test_a_phrase_needs_stronger_evidence_than_a_command(recognizer: OfflineRecognizer) -> None:
     """Chat holding a phrase word ("I'm freezing", "what's up") is a word away from the phrase."""
     freeze, look_up = _form(recognizer, "freeze"), _form(recognizer, "look up")
-    choose = recognizer._rescored_choice
+    choose = functools.partial(recognizer._rescored_choice, limits=recognizer.config.acceptance.clean)
     aligned = (-1.2, 3.0)  # aligns well, stands out
     assert choose([_rescored(FormScore(look_up, -7.0, 5.5), *aligned)], None) is not None
     assert choose([_rescored(FormScore(freeze, -7.0, 5.5), *aligned)], None) is None  # not on alignment alone
+    # On Moonshine's word alone, only nearly what it wrote ("what's up" is "wake up" at 1.1 in noise).
+    assert choose([_rescored(FormScore(look_up, -3.0, 1.5), -3.0)], None) is not None
+    assert choose([_rescored(FormScore(freeze, -3.0, 1.5), -3.0)], None) is None
+    assert choose([_rescored(FormScore(freeze, -2.0, 0.5), -3.0)], None) is not None
     heard_freeze = recognizer.forms[freeze]
     assert choose([_rescored(FormScore(freeze, -7.0, 5.5), -3.0)], heard_freeze) is not None
     assert (
@@ -215,13 +220,13 @@ def test_pocketsphinx_alignments_rerank_what_moonshine_misheard(
 ) -> None:
     pcm = synthesize(text, voice)
     samples = np.frombuffer(pcm, dtype="<i2").astype(np.int16)
-    forms = recognizer._scorer.analyse(recognizer._moonshine_input(samples)).forms  # type: ignore[union-attr]
+    forms = recognizer._scorer.analyse(recognizer._moonshine_input(samples).audio).forms  # type: ignore[union-attr]
     meaning_of = recognizer._meaning
     assert meaning_of(forms[0])[1] != canonical  # Moonshine alone: "forward" for "full right/left"
-    leaders = leading(forms, meaning_of, recognizer.config.rescore_meanings)
+    leaders = leading(forms, meaning_of, recognizer.config.acceptance.rescore_meanings)
     audio = recognizer._prepared(samples)
     alignments = [recognizer._align(audio, recognizer.forms[score.index].words) for score in leaders]
-    reranked = rescore(leaders, alignments, recognizer.config.alignment_weight)
+    reranked = rescore(leaders, alignments, recognizer.config.acceptance.alignment_weight)
     assert meaning_of(reranked[0].score)[1] == canonical
     result = recognizer.recognize(pcm, RATE)
     assert (result.kind, result.canonical) == (RecognitionKind.COMMAND, canonical), result
@@ -233,7 +238,7 @@ def test_moonshine_hears_the_utterance_noise_suppressed(recognizer: OfflineRecog
     speech = np.zeros(RATE, dtype=np.float64)
     speech[4000:12000] = np.sin(np.arange(8000) / 5.0) * 8000  # a "word" between pauses
     noisy = np.clip(speech + rng.normal(0.0, 800.0, RATE), -32768, 32767).astype(np.int16)
-    audio = recognizer._moonshine_input(noisy)
+    audio = recognizer._moonshine_input(noisy).audio
     assert len(audio) == RATE and audio.dtype == np.float32
     pause = slice(0, 3000)
     assert np.sqrt(np.mean(audio[pause] ** 2)) < 0.5 * np.sqrt(np.mean((noisy[pause] / 32768.0) ** 2))
@@ -272,6 +277,37 @@ def test_a_form_moonshine_is_sure_of_gives_way_to_a_meaning_that_aligns_much_bet
 ) -> None:
     pcm = synthesize("move full right", "en-us")
     samples = np.frombuffer(pcm, dtype="<i2").astype(np.int16)
-    best = recognizer._scorer.analyse(recognizer._moonshine_input(samples)).forms[0]  # type: ignore[union-attr]
-    assert recognizer._meaning(best)[1] == "move@forward" and best.regret <= recognizer.config.accept_regret
+    best = recognizer._scorer.analyse(recognizer._moonshine_input(samples).audio).forms[0]  # type: ignore[union-attr]
+    assert (
+        recognizer._meaning(best)[1] == "move@forward"
+        and best.regret <= recognizer.config.acceptance.clean.accept_regret
+    )
     assert recognizer.recognize(pcm, RATE).canonical == "move@full-right"
+
+
+@pytest.mark.unit
+def test_a_noisy_utterance_is_judged_by_the_noisy_limits(
+    recognizer: OfflineRecognizer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Noise raises every regret: a form at regret 4 is too far from clean speech, not from speech
+    under noise (acceptance.py)."""
+    from by_your_command.offline.acceptance import Acceptance, AcceptLimits
+    from by_your_command.offline.moonshine import Analysis, Transcript
+
+    acceptance = Acceptance(clean=AcceptLimits(near_regret=3.0), noisy=AcceptLimits(near_regret=4.5))
+    monkeypatch.setattr(recognizer, "config", dataclasses.replace(recognizer.config, acceptance=acceptance))
+    monkeypatch.setattr(recognizer, "_decode", lambda audio, search: ("", 0.0))  # pocketsphinx heard nothing
+    monkeypatch.setattr(recognizer, "_align", lambda audio, words: Alignment(-300.0, 100))  # aligns poorly
+    look_up = _form(recognizer, "look up")
+    analysis = Analysis([FormScore(look_up, -5.0, 4.0, 0.0)], Transcript("Look at.", -3.0, True))
+    assert recognizer._scorer is not None
+    monkeypatch.setattr(recognizer._scorer, "analyse", lambda audio: analysis)
+    rng = np.random.default_rng(3)
+    word = np.zeros(RATE)
+    word[4000:12000] = np.sin(np.arange(8000) / 5.0) * 8000
+    quiet_pauses = word.astype("<i2")
+    noisy = np.clip(word + rng.normal(0.0, 1500.0, RATE), -32768, 32767).astype("<i2")
+    assert recognizer._moonshine_input(noisy).snr_db < acceptance.noisy_below_snr_db
+    assert recognizer._moonshine_input(quiet_pauses).snr_db >= acceptance.noisy_below_snr_db
+    assert recognizer.recognize(noisy.tobytes(), RATE).canonical == "lookup"
+    assert recognizer.recognize(quiet_pauses.tobytes(), RATE).kind is RecognitionKind.REJECTED
