@@ -14,7 +14,7 @@ half second (test_gemini_sessions.py), a slow client against the bridge core
 from __future__ import annotations
 
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +40,7 @@ from agent_graph import (
     setup_requests,
     until,
 )
-from fault_graph import DeafClient, Ledger, failures, microphone, turn_records
+from fault_graph import DeafClient, Ledger, Microphone, failures, microphone, turn_records
 from std_msgs.msg import Bool
 
 from by_your_command.emulators import gemini_script as gemini
@@ -106,6 +106,13 @@ def speak(probe: GraphProbe, pcm: np.ndarray) -> None:
     probe.activity.publish(Bool(data=False))
 
 
+def vad_matched(probe: GraphProbe, mic: Microphone, namespace: str, since: int) -> Callable[[], bool]:
+    """A check that DDS matched prompt_voice both ways: the bridge's reader sees the VAD (and this
+    probe), and the VAD's writer gained that reader after `since` (mic.mark()). The agent's
+    subscription is what makes the bridge subscribe; discovery can take seconds on a loaded machine."""
+    return lambda: probe.bridge_sources(namespace, "prompt_voice") >= 2 and mic.gained_listener(since)
+
+
 # --- 1. the bridge killed and restarted ---------------------------------------------------------
 
 
@@ -125,6 +132,7 @@ def test_a_killed_bridge_the_utterance_in_the_outage_is_reported_by_the_vad_and_
             check = alive(agent, mic.process)
             probe.wait_agents_ready(ros_namespace, [setup_requests(settings)], WAIT_S)
             until(mic.ready, "the VAD node", check, WAIT_S)
+            until(vad_matched(probe, mic, ros_namespace, 0), "the bridge matched the VAD", check, WAIT_S)
             mic.speak(speech)
             until(lambda: outcomes(probe) == ["completed"], "the first turn", check, WAIT_S)
             assert replies(probe) == ["Before."]
@@ -144,15 +152,9 @@ def test_a_killed_bridge_the_utterance_in_the_outage_is_reported_by_the_vad_and_
             check = alive(agent, mic.process, new.process)
             probe.wait_agents_ready(ros_namespace, [setup_requests(settings)], WAIT_S)
 
-            # The agent's subscription makes the new bridge subscribe prompt_voice; speak once DDS
-            # matched both sides: the bridge's reader sees the VAD (and this probe), and the VAD's
-            # writer sees the new reader (else the utterance goes only to the dead bridge).
-            def vad_matched() -> bool:
-                return probe.bridge_sources(ros_namespace, "prompt_voice") >= 2 and mic.gained_listener(
-                    before_restart
-                )
-
-            until(vad_matched, "the new bridge's prompt_voice matched the VAD", check, WAIT_S)
+            # Else the utterance goes only to the dead bridge, still matched until its lease runs out.
+            new_bridge_matched = vad_matched(probe, mic, ros_namespace, before_restart)
+            until(new_bridge_matched, "the new bridge's prompt_voice matched the VAD", check, WAIT_S)
             mic.speak(speech)
             until(lambda: outcomes(probe) == ["completed"] * 2, "the turn after the restart", check, WAIT_S)
             assert replies(probe) == ["Before.", "After."]
