@@ -483,6 +483,11 @@ class GraphProbe:
         values = self.bridge_values(namespace) or {}
         return int(values.get(f"sources.{self.probe.topic(name)}", 0))
 
+    def bridge_hears(self, publisher: Any, namespace: str, name: str) -> bool:
+        """Both sides of the match between our `publisher` and the bridge's subscription to `name`:
+        a best-effort subscription loses what is sent before it has matched, without a retry."""
+        return publisher.get_subscription_count() > 0 and self.bridge_sources(namespace, name) > 0
+
     def wait_agents_ready(self, namespace: str, requests: list[int], timeout: float = 40.0) -> None:
         """Until the bridge has one client per agent and each has sent all its setup requests
         (subscriptions made: a prompt published now reaches the agent)."""

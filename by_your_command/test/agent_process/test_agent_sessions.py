@@ -326,7 +326,11 @@ def test_a_camera_frame_goes_to_the_model_with_the_next_turn(ros_namespace: str,
     with agent_graph(ros_namespace, tmp_path, script) as graph:
         probe, openai, check = graph.probe, graph.openai, graph.check
         camera = probe.probe.node.create_publisher(CompressedImage, "camera_forwarded", RELIABLE)
-        until(lambda: camera.get_subscription_count() > 0, "the bridge subscribed the camera", check)
+        until(
+            lambda: probe.bridge_hears(camera, ros_namespace, "camera_forwarded"),
+            "the bridge and the camera publisher matched",
+            check,
+        )
 
         def delivered() -> int:
             return int((probe.bridge_values(ros_namespace) or {}).get("ros_messages_delivered", "-1"))

@@ -189,15 +189,12 @@ def test_boxes_in_a_reply_go_to_detections_in_the_frames_pixels_and_never_to_the
         detections = listen(probe, "detections", check)
         camera = probe.probe.node.create_publisher(CompressedImage, "camera_forwarded", RELIABLE)
 
-        def bridge_hears_the_camera() -> bool:
-            # Both sides of the match: the bridge's video subscription is best effort, so a frame
-            # sent before it has matched this publisher is lost without a retry.
-            return (
-                camera.get_subscription_count() > 0
-                and probe.bridge_sources(ros_namespace, "camera_forwarded") > 0
-            )
-
-        until(bridge_hears_the_camera, "the bridge and the camera publisher matched", check, WAIT_S)
+        until(
+            lambda: probe.bridge_hears(camera, ros_namespace, "camera_forwarded"),
+            "the bridge and the camera publisher matched",
+            check,
+            WAIT_S,
+        )
         frame = jpeg(320, 240)  # not square: x and y cannot be swapped unnoticed
         header = Header(stamp=Time(sec=1_800_000_000, nanosec=250_000_000), frame_id="camera_optical")
 
