@@ -10,7 +10,8 @@ holding command words, command words in other sentences), each clean and with wh
 dB. Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine with
 pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback without the
 Moonshine model) and a bare JSGF grammar (baseline). Figures as JSON lines (decode speed as the
-median real-time factor per utterance and its ratio to the baseline's), then a table and the misses.
+median real-time factor per utterance and its ratio to the baseline's), then a table, the missed
+commands and the chat lines taken.
 usage: scripts/run.sh python bench/bench_offline_recognition.py [--forms 2] [--snr 15] [--voices ...]
        [--searches moonshine verified bare_grammar]
 """
@@ -129,10 +130,12 @@ class Tally:
     chat: int = 0
     chat_as_command: int = 0
     chat_as_question: int = 0
+    wrong_commands: int = 0  # a command heard as another command: acted on, wrongly
     audio_s: float = 0.0
     decode_s: float = 0.0
     rtf: list[float] = dataclasses.field(default_factory=list)  # per utterance
     misses: list[str] = dataclasses.field(default_factory=list)
+    chat_taken: list[str] = dataclasses.field(default_factory=list)  # listed apart from the misses
     per_voice: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
     per_voice_total: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
 
@@ -164,7 +167,7 @@ def count(tally: Tally, utterance: Utterance, result: Recognition, seconds: floa
         tally.chat_as_command += result.kind in COMMAND_KINDS
         tally.chat_as_question += result.kind is RecognitionKind.QUESTION
         if result.kind is not RecognitionKind.REJECTED:
-            tally.misses.append(f"chat {utterance.text!r} ({utterance.voice}) -> {result.canonical}")
+            tally.chat_taken.append(f"chat {utterance.text!r} ({utterance.voice}) -> {result.canonical}")
         return
     tally.commands += 1
     hit = (result.kind, result.canonical) == (expected.kind, expected.canonical)
@@ -172,6 +175,7 @@ def count(tally: Tally, utterance: Utterance, result: Recognition, seconds: floa
     tally.per_voice_total[utterance.voice] += 1
     tally.per_voice[utterance.voice] += hit
     if not hit:
+        tally.wrong_commands += result.kind in COMMAND_KINDS
         tally.misses.append(f"{utterance.text!r} ({utterance.voice}) -> {result.text!r}")
 
 
@@ -182,7 +186,9 @@ def main() -> None:
     parser.add_argument("--forms", type=int, default=2, help="spoken forms per command (default 2)")
     parser.add_argument("--snr", type=float, default=15.0, help="noise condition, dB SNR (default 15)")
     parser.add_argument("--voices", nargs="+", default=list(HELD_OUT_VOICES))
-    parser.add_argument("--misses", type=int, default=15, help="misses listed per search")
+    parser.add_argument(
+        "--misses", type=int, default=15, help="missed commands and chat lines taken listed per search"
+    )
     parser.add_argument(
         "--searches",
         nargs="+",
@@ -223,6 +229,7 @@ def main() -> None:
             emit("exact_commands", accuracy, "%", n=tally.commands, **extra)
             emit("chat_as_command", tally.chat_as_command, "lines", n=tally.chat, **extra)
             emit("chat_as_question", tally.chat_as_question, "lines", n=tally.chat, **extra)
+            emit("wrong_commands", tally.wrong_commands, "utterances", n=tally.commands, **extra)
             emit("decode_speed", rtf, "x real time", **extra)
             median = statistics.median(tally.rtf)
             baseline = statistics.median(results[BASELINE][condition].rtf)
@@ -239,10 +246,15 @@ def main() -> None:
         print(f"{search_name:<14}{condition:<10}{accuracy:>10.1f}%{as_command:>6}/{chat:<4}"
               f"{as_question:>5}/{chat:<3}{rtf:>9.3f}")  # fmt: skip
     for search, tallies in results.items():
-        misses = tallies["all"].misses
-        print(f"\n{search.value}: {len(misses)} misses" + (f", first {args.misses}:" if misses else ""))
+        misses, chat_taken = tallies["all"].misses, tallies["all"].chat_taken
+        print(
+            f"\n{search.value}: {len(misses)} missed commands" + (f", first {args.misses}:" if misses else "")
+        )
         for miss in misses[: args.misses]:
             print(f"  {miss}")
+        print(f"{search.value}: {len(chat_taken)} chat lines taken as a command or question")
+        for line in chat_taken[: args.misses]:
+            print(f"  {line}")
 
 
 if __name__ == "__main__":

@@ -3,13 +3,13 @@ holds for an utterance (noisy audio gets its own).
 
 Regret (moonshine.py): how far, in log probability summed over tokens, a form is from what
 Moonshine would have written freely; its end regret is the part paid for ending there (the model
-heard more words). Moonshine's first `rescore_meanings` meanings are reranked by log probability
-+ alignment_weight * pocketsphinx's alignment log score (rescoring.py), and the reranked best is
-accepted if it ends where the model ends (end regret at most end_regret) and
+heard more words). Moonshine's first `rescore_meanings` meanings are reranked by a weighted sum of
+both models' evidence (`rerank`, rescoring.py), and the reranked best is accepted if it ends where
+the model ends (end regret at most end_regret) and
 - its regret is at most near_regret;
 - or at most agree_regret, and the pocketsphinx grammar heard the same meaning;
 - or at most aligned_regret, it aligns at least aligned_per_frame (nats per 10 ms frame) and beats
-  the next meaning by `margin`.
+  the next meaning by `margin` (in reranking score).
 Failing all that, Moonshine's best form is taken up to accept_regret, or else the
 pocketsphinx-verified form (grammar and filler model agree) if Moonshine finds that meaning within
 confirm_regret, again ending where the model ends. Wake/sleep/stop phrases are one or two words, so
@@ -29,6 +29,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from by_your_command.offline.rescoring import RerankWeights
+
 
 @dataclass(frozen=True)
 class AcceptLimits:
@@ -38,7 +40,7 @@ class AcceptLimits:
     agree_regret: float = 9.0
     aligned_regret: float = 6.0
     aligned_per_frame: float = -1.6
-    margin: float = 2.0
+    margin: float = 1.0
     confirm_regret: float = 12.0
     phrase_regret: float = 6.0
 
@@ -76,15 +78,13 @@ class Acceptance:
     # limits hold.
     noisy_below_snr_db: float = 20.0
     rescore_meanings: int = 4
-    alignment_weight: float = 0.04
+    rerank: RerankWeights = field(default_factory=RerankWeights)
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.noisy_below_snr_db):
             raise ValueError("noisy_below_snr_db must be finite")
         if self.rescore_meanings < 1:
             raise ValueError("rescore_meanings must be at least 1")
-        if not 0.0 <= self.alignment_weight < math.inf:
-            raise ValueError("alignment_weight must be finite and not negative")
 
     def limits(self, snr_db: float) -> AcceptLimits:
         return self.noisy if snr_db < self.noisy_below_snr_db else self.clean

@@ -4,11 +4,12 @@ nothing (rejected).
 The default search (`Search.MOONSHINE`) asks the Moonshine speech model (moonshine.py; its model
 ships in the moonshine-cpp wheel) how well each spoken form explains the noise-suppressed
 utterance (front_end.py). pocketsphinx is a second opinion: it forced-aligns Moonshine's leading
-meanings to the audio, which reranks them (rescoring.py), and the reranked best is accepted when
-the evidence of both models is strong enough (acceptance.py: looser limits for a noisy
-utterance); failing that, Moonshine's best form if a free transcription would have written almost
-exactly that form, or pocketsphinx's verified form if Moonshine finds it near enough. Without the
-model it falls back to pocketsphinx alone (`Search.VERIFIED`, below).
+meanings to the audio and its grammar pass names the meaning it heard, which reranks them
+(rescoring.py), and the reranked best is accepted when the evidence of both models is strong
+enough (acceptance.py: looser limits for a noisy utterance); failing that, Moonshine's best form
+if a free transcription would have written almost exactly that form, or pocketsphinx's verified
+form if Moonshine finds it near enough. Without the model it falls back to pocketsphinx alone
+(`Search.VERIFIED`, below).
 
 pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
 the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
@@ -48,7 +49,7 @@ from by_your_command.offline.moonshine import (
     MoonshineConfig,
     MoonshineScorer,
 )
-from by_your_command.offline.rescoring import Alignment, Rescored, leading, rescore
+from by_your_command.offline.rescoring import Alignment, Candidate, Rescored, leading, rescore
 from by_your_command.offline.spoken import (
     RecognitionKind,
     SpokenForm,
@@ -240,7 +241,7 @@ class OfflineRecognizer:
         return Recognition(form.kind, form.words, form.canonical, confidence)
 
     def _moonshine(self, samples: Int16Array) -> Recognition:
-        """Moonshine's leading meanings reranked with pocketsphinx alignments; the reranked best if
+        """Moonshine's leading meanings reranked with pocketsphinx's evidence; the reranked best if
         the evidence for it holds, else Moonshine's best form if it is (nearly) what Moonshine
         would write freely, else the pocketsphinx-verified form (acceptance.py, with the noisy
         limits when the utterance is noisy). Confidence exp(-regret)."""
@@ -256,14 +257,12 @@ class OfflineRecognizer:
         if not forms:
             return _rejected(Rejection.NOT_A_FORM, heard)
         audio = self._prepared(samples)
-        leaders = leading(forms, self._meaning, acceptance.rescore_meanings)
-        alignments = [self._align(audio, self.forms[score.index].words) for score in leaders]
         grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
         form = self._by_words.get(grammar)
         heard += f", pocketsphinx {grammar!r}"
-        # Even a form Moonshine is sure of gives way to another meaning the alignments put first
+        # Even a form Moonshine is sure of gives way to another meaning the reranking puts first
         # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
-        rescored = rescore(leaders, alignments, acceptance.alignment_weight)
+        rescored = rescore(self._candidates(audio, forms, form), acceptance.rerank)
         chosen = self._rescored_choice(rescored, form, limits)
         if chosen is None and forms[0].regret <= limits.accept_regret:
             chosen = forms[0]
@@ -279,6 +278,19 @@ class OfflineRecognizer:
             return _rejected(Rejection.NOT_A_FORM, heard)
         form = self.forms[chosen.index]
         return Recognition(form.kind, form.words, form.canonical, float(np.exp(-chosen.regret)))
+
+    def _candidates(
+        self, audio: bytes, forms: list[FormScore], grammar: SpokenForm | None
+    ) -> list[Candidate]:
+        """Moonshine's leading meanings with pocketsphinx's evidence about each (`grammar`: the
+        form its grammar pass heard)."""
+        heard = None if grammar is None else (grammar.kind, grammar.canonical)
+        candidates = []
+        for score in leading(forms, self._meaning, self.config.acceptance.rescore_meanings):
+            words = self.forms[score.index].words
+            alignment = self._align(audio, words)
+            candidates.append(Candidate(score, alignment, len(words.split()), self._meaning(score) == heard))
+        return candidates
 
     def _rescored_choice(
         self, rescored: list[Rescored], grammar: SpokenForm | None, limits: AcceptLimits
