@@ -82,9 +82,11 @@ def emit(figure: str, value: float, unit: str, **extra: Any) -> None:
     print(json.dumps({**record, **extra}), flush=True)
 
 
-def synthesize(text: str, voice: str) -> Int16Array:
+def synthesize(text: str, voice: str, words_per_minute: int = 150, pitch: int | None = None) -> Int16Array:
+    """espeak-ng's speech at RATE (pitch 0-99; None: the voice's own)."""
+    pitch_option = [] if pitch is None else ["-p", str(pitch)]
     wav = subprocess.run(
-        ["espeak-ng", "-v", voice, "-s", "150", "--stdout", "--stdin"],
+        ["espeak-ng", "-v", voice, "-s", str(words_per_minute), *pitch_option, "--stdout", "--stdin"],
         input=text.encode(),
         capture_output=True,
         check=True,

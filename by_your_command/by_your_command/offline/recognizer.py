@@ -32,6 +32,7 @@ import os
 import tempfile
 import threading
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -135,6 +136,17 @@ class RecognizerStats:
     decoded: int = 0
     by_kind: Counter[str] = field(default_factory=Counter)
     rejections: Counter[str] = field(default_factory=Counter)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What Moonshine and pocketsphinx say about one utterance, before any limit is applied."""
+
+    snr_db: float  # the loud frames over the background (front_end.Cleaned)
+    forms: list[FormScore]  # Moonshine's finished forms, best first
+    free_text: str  # Moonshine's own transcript
+    grammar_text: str  # pocketsphinx's grammar pass ("" when it heard nothing, or was not run)
+    candidates: list[Candidate]  # the leading meanings with pocketsphinx's evidence (rescoring.py)
 
 
 def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
@@ -245,39 +257,60 @@ class OfflineRecognizer:
         the evidence for it holds, else Moonshine's best form if it is (nearly) what Moonshine
         would write freely, else the pocketsphinx-verified form (acceptance.py, with the noisy
         limits when the utterance is noisy). Confidence exp(-regret)."""
-        assert self._scorer is not None
-        acceptance = self.config.acceptance
-        cleaned = self._moonshine_input(samples)
-        limits = acceptance.limits(cleaned.snr_db)
-        with self._lock:
-            analysis = self._scorer.analyse(cleaned.audio)
-            self.stats.decoded += 1
-        forms = analysis.forms
-        heard = f"heard {analysis.free.text!r}"
-        if not forms:
-            return _rejected(Rejection.NOT_A_FORM, heard)
-        audio = self._prepared(samples)
-        grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
-        form = self._by_words.get(grammar)
-        heard += f", pocketsphinx {grammar!r}"
-        # Even a form Moonshine is sure of gives way to another meaning the reranking puts first
-        # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
-        rescored = rescore(self._candidates(audio, forms, form), acceptance.rerank)
-        chosen = self._rescored_choice(rescored, form, limits)
-        if chosen is None and forms[0].regret <= limits.accept_regret:
-            chosen = forms[0]
-        if chosen is None and form is not None:
-            check, _ = self._decode(audio, FILLER_SEARCH)
-            confirmed = self._by_words.get(check)
-            if confirmed is not None and confirmed.canonical == form.canonical:
-                meaning = (form.kind, form.canonical)
-                same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= limits.end_regret]
-                if same and min(s.regret for s in same) <= _limit(form.kind, limits.confirm_regret, limits):
-                    chosen = min(same, key=lambda s: s.regret)
+        evidence = self.evidence(samples)
+        chosen = self.decide(evidence, self.config.acceptance, lambda: self.filler_heard(samples))
         if chosen is None:
+            heard = f"heard {evidence.free_text!r}"
+            if evidence.forms:
+                heard += f", pocketsphinx {evidence.grammar_text!r}"
             return _rejected(Rejection.NOT_A_FORM, heard)
         form = self.forms[chosen.index]
         return Recognition(form.kind, form.words, form.canonical, float(np.exp(-chosen.regret)))
+
+    def evidence(self, samples: Int16Array) -> Evidence:
+        """What both models say about one 16 kHz utterance (the Moonshine search): Moonshine's forms
+        and, when it found any, pocketsphinx's grammar pass and its alignments of the leading
+        meanings."""
+        assert self._scorer is not None
+        cleaned = self._moonshine_input(samples)
+        with self._lock:
+            analysis = self._scorer.analyse(cleaned.audio)
+            self.stats.decoded += 1
+        if not analysis.forms:
+            return Evidence(cleaned.snr_db, [], analysis.free.text, "", [])
+        audio = self._prepared(samples)
+        grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
+        candidates = self._candidates(audio, analysis.forms, self._by_words.get(grammar))
+        return Evidence(cleaned.snr_db, analysis.forms, analysis.free.text, grammar, candidates)
+
+    def filler_heard(self, samples: Int16Array) -> str:
+        """What pocketsphinx's filler model hears in a 16 kHz utterance ("" for nothing)."""
+        return self._decode(self._prepared(samples), FILLER_SEARCH)[0]
+
+    def decide(
+        self, evidence: Evidence, acceptance: Acceptance, filler_heard: Callable[[], str]
+    ) -> FormScore | None:
+        """The form taken on this evidence (acceptance.py), or None. `filler_heard`: what
+        pocketsphinx's filler pass hears, asked only when the other paths fail."""
+        forms = evidence.forms
+        if not forms:
+            return None
+        limits = acceptance.limits(evidence.snr_db)
+        grammar = self._by_words.get(evidence.grammar_text)
+        # Even a form Moonshine is sure of gives way to another meaning the reranking puts first
+        # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
+        chosen = self._rescored_choice(rescore(evidence.candidates, acceptance.rerank), grammar, limits)
+        if chosen is None and forms[0].regret <= limits.accept_regret:
+            chosen = forms[0]
+        if chosen is None and grammar is not None:
+            confirmed = self._by_words.get(filler_heard())
+            if confirmed is not None and confirmed.canonical == grammar.canonical:
+                meaning = (grammar.kind, grammar.canonical)
+                same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= limits.end_regret]
+                limit = _limit(grammar.kind, limits.confirm_regret, limits)
+                if same and min(s.regret for s in same) <= limit:
+                    chosen = min(same, key=lambda s: s.regret)
+        return chosen
 
     def _candidates(
         self, audio: bytes, forms: list[FormScore], grammar: SpokenForm | None

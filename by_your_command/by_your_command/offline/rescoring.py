@@ -5,8 +5,8 @@ Moonshine's best form is often not the right one when it is unsure (espeak's "bu
 Moonshine's first in 85 % of clean and 67 % of noisy commands, among its first four in 97 % and
 90 %. pocketsphinx, a different model trained on different data, forced-aligns the words of each
 leading meaning to the same audio, and its grammar pass names the meaning it heard. A linear score
-of all that evidence (RerankWeights) picks the meaning: first right in 95 % / 87 % of the tuning
-set's commands, against 90 % / 82 % for log probability plus a weighted alignment alone. How well
+of all that evidence (RerankWeights) picks the meaning: first right in 94 % / 89 % of the tuning
+set's commands, against 91 % / 85 % for log probability plus a weighted alignment alone. How well
 the chosen form aligns per frame, and by how much it beats the next meaning, are evidence for
 accepting it (acceptance.py).
 """
@@ -36,7 +36,8 @@ class Alignment:
 @dataclass(frozen=True)
 class RerankWeights:
     """What each piece of evidence about a candidate meaning adds to its reranking score: a
-    conditional logit fitted on the tuning records (docs/offline.md, sixth tuning run)."""
+    conditional logit fitted on the tuning records (docs/offline.md, sixth tuning run;
+    bench/tune_offline_reranking.py fits them again)."""
 
     logprob: float = 0.24  # Moonshine's log probability of the form
     regret: float = -0.27  # how far the form is from what Moonshine would write freely
@@ -49,8 +50,12 @@ class RerankWeights:
     words: float = 0.68
 
     def __post_init__(self) -> None:
-        if not all(math.isfinite(value) for value in dataclasses.astuple(self)):
+        if not all(math.isfinite(value) for value in self.as_tuple()):
             raise ValueError("the reranking weights must be finite")
+
+    def as_tuple(self) -> tuple[float, ...]:
+        """In field order, as evidence_vector lists the evidence."""
+        return tuple(getattr(self, field.name) for field in dataclasses.fields(self))
 
 
 @dataclass(frozen=True)
@@ -82,17 +87,23 @@ def leading(forms: list[FormScore], meaning: Callable[[FormScore], Hashable], co
     return list(chosen.values())
 
 
-def _reranking_score(candidate: Candidate, alignment: Alignment, weights: RerankWeights) -> float:
+def evidence_vector(candidate: Candidate, alignment: Alignment) -> tuple[float, ...]:
+    """The numbers RerankWeights weighs, one per field and in its field order."""
     score = candidate.score
     return (
-        weights.logprob * score.logprob
-        + weights.regret * score.regret
-        + weights.end_regret * score.end_regret
-        + weights.alignment * alignment.log_score
-        + weights.alignment_per_frame * alignment.per_frame
-        + weights.grammar_agrees * candidate.grammar_agrees
-        + weights.words * candidate.words
+        score.logprob,
+        score.regret,
+        score.end_regret,
+        alignment.log_score,
+        alignment.per_frame,
+        float(candidate.grammar_agrees),
+        float(candidate.words),
     )
+
+
+def _reranking_score(candidate: Candidate, alignment: Alignment, weights: RerankWeights) -> float:
+    evidence = evidence_vector(candidate, alignment)
+    return math.fsum(weight * value for weight, value in zip(weights.as_tuple(), evidence, strict=True))
 
 
 def rescore(candidates: list[Candidate], weights: RerankWeights) -> list[Rescored]:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from by_your_command.offline.moonshine import FormScore
-from by_your_command.offline.recognizer import OfflineRecognizer, Rejection
+from by_your_command.offline.recognizer import Evidence, OfflineRecognizer, Rejection
 from by_your_command.offline.rescoring import Alignment, Rescored, rescore
 from by_your_command.offline.spoken import RecognitionKind
 
@@ -310,3 +310,30 @@ def test_a_noisy_utterance_is_judged_by_the_noisy_limits(
     assert recognizer._moonshine_input(quiet_pauses).snr_db >= acceptance.noisy_below_snr_db
     assert recognizer.recognize(noisy.tobytes(), RATE).canonical == "lookup"
     assert recognizer.recognize(quiet_pauses.tobytes(), RATE).kind is RecognitionKind.REJECTED
+
+
+@pytest.mark.unit
+def test_recorded_evidence_is_decided_without_decoding_and_the_filler_pass_is_asked_last(
+    recognizer: OfflineRecognizer,
+) -> None:
+    """decide() is what recognize() runs on its evidence; the tuning script replays records with it."""
+    look_up = _form(recognizer, "look up")
+    acceptance = recognizer.config.acceptance
+    asked: list[str] = []
+
+    def filler(heard: str) -> Callable[[], str]:
+        def ask() -> str:
+            asked.append(heard)
+            return heard
+
+        return ask
+
+    sure = Evidence(40.0, [FormScore(look_up, -1.0, 0.2)], "Look up.", "", [])
+    assert recognizer.decide(sure, acceptance, filler("look up")) == sure.forms[0]
+    assert asked == []  # Moonshine's word was enough
+    unsure = Evidence(40.0, [FormScore(look_up, -8.0, 7.0)], "Look at.", "look up", [])
+    assert recognizer.decide(unsure, acceptance, filler("look up")) == unsure.forms[0]  # verified
+    assert recognizer.decide(unsure, acceptance, filler("look at the")) is None  # the filler model disagrees
+    assert asked == ["look up", "look at the"]
+    assert recognizer.decide(Evidence(40.0, [], "", "", []), acceptance, filler("look up")) is None
+    assert len(asked) == 2

@@ -1,0 +1,260 @@
+"""Fit the offline recognizer's reranking weights (offline/rescoring.py, RerankWeights) on tuning
+voices, and show what the accept rules make of them.
+
+Tuning voices are espeak-ng voices, speeds and pitches that the benchmark never uses
+(bench_offline_recognition.py holds those out): every spoken form of the vocabulary said by two of
+them, each chat line by three, clean and with white noise at 15 dB. Every utterance is decoded
+once (OfflineRecognizer.evidence, plus pocketsphinx's filler pass) and the records saved as JSON
+(--records: read them instead of decoding again). Then:
+
+- a conditional logit fits one weight per piece of evidence so that the right candidate of each
+  command utterance gets the highest score (candidates: Moonshine's leading meanings that aligned;
+  utterances whose right meaning is not among them are left out of the fit);
+- the tuning voices are split in two halves, and weights fitted on one half are tested on the
+  other (both ways): the fit is worth shipping only if it gains there too;
+- every variant is scored by the shipped accept rules (OfflineRecognizer.decide): exact commands,
+  chat taken as a command, commands taken as another command; and the ceiling (the reranked best
+  is the right meaning, no rejection).
+
+usage: scripts/run.sh python bench/tune_offline_reranking.py [--records FILE] [--margin 1.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from bench_offline_recognition import CHAT, synthesize, with_noise
+from scipy.optimize import minimize
+
+from by_your_command.offline.acceptance import Acceptance, AcceptLimits
+from by_your_command.offline.moonshine import FormScore
+from by_your_command.offline.recognizer import Evidence, OfflineRecognizer
+from by_your_command.offline.rescoring import Alignment, Candidate, RerankWeights, evidence_vector, rescore
+from by_your_command.offline.spoken import RecognitionKind
+
+# (voice, words per minute, pitch): none of them is a benchmark voice
+TUNING_VOICES = (
+    ("en-gb-scotland+m3", 150, 50), ("en-gb-x-gbclan+f2", 160, 60), ("en-us+m5", 140, 40),
+    ("en-gb-x-gbcwmd+f4", 170, 55), ("en-us+klatt", 155, 45), ("en-gb+f1", 145, 65), ("en-us+m2", 175, 35),
+    ("en-gb-scotland+f5", 165, 50), ("en-us+m1", 150, 45), ("en-gb+m4", 160, 40),
+)  # fmt: skip
+SNR_DB = 15.0
+FEATURES = tuple(field.name for field in dataclasses.fields(RerankWeights))
+PREVIOUS = RerankWeights(  # log probability + 0.04 x alignment: the score before the fit
+    logprob=1.0,
+    regret=0.0,
+    end_regret=0.0,
+    alignment=0.04,
+    alignment_per_frame=0.0,
+    grammar_agrees=0.0,
+    words=0.0,
+)
+COMMAND_KINDS = (RecognitionKind.COMMAND, RecognitionKind.PHRASE)
+
+
+@dataclasses.dataclass(frozen=True)
+class Record:
+    voice: str
+    condition: str
+    expected: tuple[str, str] | None  # (kind, canonical); None for chat
+    evidence: Evidence
+    filler: str  # what pocketsphinx's filler pass heard
+
+
+def decode_corpus(recognizer: OfflineRecognizer) -> list[Record]:
+    meanings: dict[tuple[str, str], list[str]] = {}
+    for form in recognizer.forms:
+        meanings.setdefault((form.kind.value, form.canonical), []).append(form.words)
+    said: list[tuple[str, tuple[str, str] | None]] = [
+        (words, meaning) for meaning, forms in sorted(meanings.items()) for words in forms
+    ]
+    records = []
+    turn = 0
+    for text, expected in [*said, *((line, None) for line in CHAT)]:
+        for _ in range(2 if expected else 3):
+            voice, speed, pitch = TUNING_VOICES[turn % len(TUNING_VOICES)]
+            turn += 1
+            speech = synthesize(text, voice, speed, pitch)
+            for condition, samples in (
+                ("clean", speech),
+                (f"snr{SNR_DB:g}", with_noise(speech, SNR_DB, turn)),
+            ):
+                evidence = recognizer.evidence(samples)
+                records.append(Record(voice, condition, expected, evidence, recognizer.filler_heard(samples)))
+        print(f"decoded {len(records)} utterances", end="\r", flush=True)
+    return records
+
+
+def to_json(record: Record) -> dict[str, Any]:
+    return dataclasses.asdict(record)
+
+
+def from_json(data: dict[str, Any]) -> Record:
+    evidence = data["evidence"]
+    candidates = [
+        Candidate(
+            FormScore(**c["score"]),
+            None if c["alignment"] is None else Alignment(**c["alignment"]),
+            int(c["words"]),
+            bool(c["grammar_agrees"]),
+        )
+        for c in evidence["candidates"]
+    ]
+    return Record(
+        data["voice"],
+        data["condition"],
+        None if data["expected"] is None else (data["expected"][0], data["expected"][1]),
+        Evidence(
+            float(evidence["snr_db"]),
+            [FormScore(**f) for f in evidence["forms"]],
+            str(evidence["free_text"]),
+            str(evidence["grammar_text"]),
+            candidates,
+        ),
+        str(data["filler"]),
+    )
+
+
+def fit(records: list[Record], meaning_of: Any, l2: float = 1.0) -> RerankWeights:
+    """Conditional logit: the weights that make each command's right candidate most likely. `l2`
+    (on weights in standard units) keeps them small: unpenalised, the evidence separates most
+    utterances outright and the weights grow without changing the ranking, which makes a fixed
+    margin mean less and less."""
+    groups = []
+    for record in records:
+        aligned = [(c, c.alignment) for c in record.evidence.candidates if c.alignment is not None]
+        right = [i for i, (c, _) in enumerate(aligned) if meaning_of(c.score) == record.expected]
+        if record.expected is not None and right and len(aligned) > 1:
+            groups.append((np.array([evidence_vector(c, alignment) for c, alignment in aligned]), right[0]))
+    if not groups:
+        raise SystemExit("no command utterance with its right meaning among two or more candidates")
+    scale = np.vstack([x for x, _ in groups]).std(axis=0) + 1e-9  # fit in standard units
+
+    def loss(w: np.ndarray) -> tuple[float, np.ndarray]:
+        total, grad = l2 * float(w @ w), 2 * l2 * w
+        for x, right in groups:
+            z = (x / scale) @ w
+            p = np.exp(z - z.max())
+            p /= p.sum()
+            total -= float(np.log(max(p[right], 1e-300)))
+            grad = grad - (x[right] / scale - p @ (x / scale))
+        return total, grad
+
+    result = minimize(loss, np.zeros(len(FEATURES)), jac=True, method="L-BFGS-B")
+    weights = result.x / scale
+    return RerankWeights(
+        **{name: float(f"{value:.2g}") for name, value in zip(FEATURES, weights, strict=True)}
+    )
+
+
+@dataclasses.dataclass
+class Score:
+    commands: int = 0
+    exact: int = 0
+    ceiling: int = 0
+    chat_taken: int = 0
+    wrong: int = 0
+
+    def row(self) -> str:
+        exact, ceiling = (100.0 * n / max(self.commands, 1) for n in (self.exact, self.ceiling))
+        return (
+            f"{exact:6.1f} %  ceiling {ceiling:5.1f} %  chat->cmd {self.chat_taken:3d}  wrong {self.wrong:3d}"
+        )
+
+
+def evaluate(
+    recognizer: OfflineRecognizer, records: list[Record], acceptance: Acceptance
+) -> dict[str, Score]:
+    scores: dict[str, Score] = {}
+    for record in records:
+        score = scores.setdefault(record.condition, Score())
+        chosen = recognizer.decide(record.evidence, acceptance, functools.partial(str, record.filler))
+        taken = None if chosen is None else recognizer.forms[chosen.index]
+        if record.expected is None:
+            score.chat_taken += taken is not None and taken.kind in COMMAND_KINDS
+            continue
+        score.commands += 1
+        meaning = None if taken is None else (taken.kind.value, taken.canonical)
+        score.exact += meaning == record.expected
+        score.wrong += taken is not None and meaning != record.expected and taken.kind in COMMAND_KINDS
+        reranked = rescore(record.evidence.candidates, acceptance.rerank)
+        score.ceiling += bool(reranked) and meaning_key(recognizer, reranked[0].score) == record.expected
+    return scores
+
+
+def meaning_key(recognizer: OfflineRecognizer, score: FormScore) -> tuple[str, str]:
+    form = recognizer.forms[score.index]
+    return form.kind.value, form.canonical
+
+
+def with_rerank(weights: RerankWeights, margin: float) -> Acceptance:
+    shipped = Acceptance()
+    return dataclasses.replace(
+        shipped,
+        rerank=weights,
+        clean=dataclasses.replace(shipped.clean, margin=margin),
+        noisy=dataclasses.replace(shipped.noisy, margin=margin),
+    )
+
+
+def report(name: str, scores: dict[str, Score]) -> None:
+    for condition in sorted(scores):
+        print(f"  {name:<46}{condition:<8}{scores[condition].row()}")
+        record = {"bench": "offline_reranking", "variant": name, "condition": condition}
+        print(json.dumps({**record, **dataclasses.asdict(scores[condition])}), flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--records", type=Path, help="JSON records: read if present, else written")
+    parser.add_argument("--margin", type=float, default=AcceptLimits().margin, help="alignment path margin")
+    args = parser.parse_args()
+    recognizer = OfflineRecognizer()
+    if recognizer.search.value != "moonshine":
+        raise SystemExit("the Moonshine model is not installed: nothing to tune")
+    if args.records is not None and args.records.exists():
+        records = [from_json(item) for item in json.loads(args.records.read_text())]
+    else:
+        records = decode_corpus(recognizer)
+        if args.records is not None:
+            args.records.write_text(json.dumps([to_json(record) for record in records]))
+    print(f"{len(records)} utterances, {sum(r.expected is not None for r in records)} of them commands")
+
+    def meaning_of(score: FormScore) -> tuple[str, str]:
+        return meaning_key(recognizer, score)
+
+    fitted = fit(records, meaning_of)
+    print(f"fitted on all tuning voices: {fitted}")
+    print("\nvariant (shipped accept rules)                condition exact commands")
+    report("shipped weights", evaluate(recognizer, records, Acceptance()))
+    report("previous score, margin 2", evaluate(recognizer, records, with_rerank(PREVIOUS, 2.0)))
+    report(
+        f"fitted on all, margin {args.margin:g}",
+        evaluate(recognizer, records, with_rerank(fitted, args.margin)),
+    )
+    voices = [voice for voice, _, _ in TUNING_VOICES]
+    halves = (set(voices[0::2]), set(voices[1::2]))
+    for train, test in (halves, halves[::-1]):
+        fitted_half = fit([r for r in records if r.voice in train], meaning_of)
+        tested = [r for r in records if r.voice in test]
+        print(f"\nfitted on {sorted(train)}: {fitted_half}")
+        report(
+            "  other half: previous score, margin 2",
+            evaluate(recognizer, tested, with_rerank(PREVIOUS, 2.0)),
+        )
+        report(
+            f"  other half: fitted, margin {args.margin:g}",
+            evaluate(recognizer, tested, with_rerank(fitted_half, args.margin)),
+        )
+
+
+if __name__ == "__main__":
+    main()
