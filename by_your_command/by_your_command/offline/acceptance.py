@@ -9,13 +9,15 @@ the model ends (end regret at most end_regret) and
 - its regret is at most near_regret;
 - or at most agree_regret, and the pocketsphinx grammar heard the same meaning;
 - or at most aligned_regret, it aligns at least aligned_per_frame (nats per 10 ms frame) and beats
-  the next meaning by `margin` (in reranking score).
+  the next meaning by `margin` (in reranking score);
+- or its reranking score, which weighs all the evidence, is at least evidence_score.
 Failing all that, Moonshine's best form is taken up to accept_regret, or else the
 pocketsphinx-verified form (grammar and filler model agree) if Moonshine finds that meaning within
 confirm_regret, again ending where the model ends. Wake/sleep/stop phrases are one or two words, so
 chat holding one ("I'm freezing", "what's up", "sleep well") is a word or two away from them: a
 phrase is taken on Moonshine's word alone only up to accept_regret (nearly what it wrote freely),
-with pocketsphinx agreeing only up to phrase_regret, and never on the alignment alone.
+with pocketsphinx agreeing only up to phrase_regret, and never on the alignment or the reranking
+score alone.
 
 Noise raises every regret, the right form's and chat's alike: Moonshine is less sure of every
 token. Limits that keep all chat out of clean speech therefore turn away commands in noise that
@@ -41,6 +43,7 @@ class AcceptLimits:
     aligned_regret: float = 6.0
     aligned_per_frame: float = -1.6
     margin: float = 1.0
+    evidence_score: float = -4.5  # a reranking score (rescoring.py) this high is evidence enough
     confirm_regret: float = 12.0
     phrase_regret: float = 6.0
 
@@ -52,7 +55,14 @@ class AcceptLimits:
             self.confirm_regret,
             self.phrase_regret,
         )
-        values = (self.accept_regret, *limits, self.end_regret, self.margin, self.aligned_per_frame)
+        values = (
+            self.accept_regret,
+            *limits,
+            self.end_regret,
+            self.margin,
+            self.aligned_per_frame,
+            self.evidence_score,
+        )
         if not all(math.isfinite(value) for value in values):
             raise ValueError("the regret limits and margins must be finite")
         if not 0.0 <= self.accept_regret <= min(limits):

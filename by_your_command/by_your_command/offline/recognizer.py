@@ -349,6 +349,7 @@ class OfflineRecognizer:
                 and best.alignment.per_frame >= limits.aligned_per_frame
                 and best.margin >= limits.margin
             )
+            or (kind is not RecognitionKind.PHRASE and best.combined >= limits.evidence_score)
         ):
             return score
         return None

@@ -17,7 +17,12 @@ def test_limits_are_checked() -> None:
         AcceptLimits(phrase_regret=0.5)
     with pytest.raises(ValueError, match="accept_regret"):
         AcceptLimits(accept_regret=-1.0)
-    for bad in ({"aligned_per_frame": math.nan}, {"phrase_regret": math.inf}, {"end_regret": math.nan}):
+    for bad in (
+        {"aligned_per_frame": math.nan},
+        {"phrase_regret": math.inf},
+        {"end_regret": math.nan},
+        {"evidence_score": -math.inf},
+    ):
         with pytest.raises(ValueError, match="finite"):
             AcceptLimits(**bad)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="negative"):

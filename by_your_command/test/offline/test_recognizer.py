@@ -146,8 +146,10 @@ def _form(recognizer: OfflineRecognizer, words: str) -> int:
     return next(i for i, form in enumerate(recognizer.forms) if form.words == words)
 
 
-def _rescored(score: FormScore, per_frame: float = -1.0, margin: float = 5.0) -> Rescored:
-    return Rescored(score, Alignment(100 * per_frame, 100), score.logprob + 4 * per_frame, margin)
+def _rescored(
+    score: FormScore, per_frame: float = -1.0, margin: float = 5.0, combined: float = -20.0
+) -> Rescored:
+    return Rescored(score, Alignment(100 * per_frame, 100), combined, margin)
 
 
 @pytest.mark.unit
@@ -184,6 +186,24 @@ def test_a_form_the_grammar_heard_too_is_taken_further_from_the_free_transcript(
     more_words = _rescored(FormScore(index, -10.0, 8.0, end_regret=1.0), per_frame=-3.0)
     assert choose([more_words], pan_left) is None
     assert choose([_rescored(FormScore(index, -12.0, 10.0), per_frame=-3.0)], pan_left) is None  # too far
+
+
+@pytest.mark.unit
+def test_a_reranking_score_that_weighs_enough_evidence_is_taken_on_its_own(
+    recognizer: OfflineRecognizer,
+) -> None:
+    """Beyond every regret limit, aligning poorly per frame and nearly tied: the reranking score
+    (all the evidence weighed) decides, never for a phrase and never past the end."""
+    look_up, freeze = _form(recognizer, "look up"), _form(recognizer, "freeze")
+    limits = recognizer.config.acceptance.clean
+    choose = functools.partial(recognizer._rescored_choice, limits=limits)
+    far = FormScore(look_up, -12.0, 10.0)
+    strong, weak = limits.evidence_score + 0.5, limits.evidence_score - 0.5
+    assert choose([_rescored(far, per_frame=-2.5, margin=0.1, combined=strong)], None) is far
+    assert choose([_rescored(far, per_frame=-2.5, margin=0.1, combined=weak)], None) is None
+    assert choose([_rescored(FormScore(freeze, -12.0, 10.0), -2.5, 0.1, combined=strong)], None) is None
+    ends_early = FormScore(look_up, -12.0, 10.0, end_regret=2.0)
+    assert choose([_rescored(ends_early, per_frame=-2.5, margin=0.1, combined=strong)], None) is None
 
 
 @pytest.mark.unit
