@@ -25,18 +25,18 @@ import argparse
 import dataclasses
 import functools
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_offline_recognition import CHAT, synthesize, with_noise
+from bench_offline_recognition import CHAT, COMMAND_KINDS, synthesize, with_noise
 from scipy.optimize import minimize
 
 from by_your_command.offline.acceptance import Acceptance, AcceptLimits
 from by_your_command.offline.moonshine import FormScore
 from by_your_command.offline.recognizer import Evidence, OfflineRecognizer
 from by_your_command.offline.rescoring import Alignment, Candidate, RerankWeights, evidence_vector, rescore
-from by_your_command.offline.spoken import RecognitionKind
 
 # (voice, words per minute, pitch): none of them is a benchmark voice
 TUNING_VOICES = (
@@ -55,7 +55,6 @@ PREVIOUS = RerankWeights(  # log probability + 0.04 x alignment: the score befor
     grammar_agrees=0.0,
     words=0.0,
 )
-COMMAND_KINDS = (RecognitionKind.COMMAND, RecognitionKind.PHRASE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,10 +90,6 @@ def decode_corpus(recognizer: OfflineRecognizer) -> list[Record]:
     return records
 
 
-def to_json(record: Record) -> dict[str, Any]:
-    return dataclasses.asdict(record)
-
-
 def from_json(data: dict[str, Any]) -> Record:
     evidence = data["evidence"]
     candidates = [
@@ -121,7 +116,9 @@ def from_json(data: dict[str, Any]) -> Record:
     )
 
 
-def fit(records: list[Record], meaning_of: Any, l2: float = 1.0) -> RerankWeights:
+def fit(
+    records: list[Record], meaning_of: Callable[[FormScore], tuple[str, str]], l2: float = 1.0
+) -> RerankWeights:
     """Conditional logit: the weights that make each command's right candidate most likely. `l2`
     (on weights in standard units) keeps them small: unpenalised, the evidence separates most
     utterances outright and the weights grow without changing the ranking, which makes a fixed
@@ -135,15 +132,16 @@ def fit(records: list[Record], meaning_of: Any, l2: float = 1.0) -> RerankWeight
     if not groups:
         raise SystemExit("no command utterance with its right meaning among two or more candidates")
     scale = np.vstack([x for x, _ in groups]).std(axis=0) + 1e-9  # fit in standard units
+    scaled = [(x / scale, right) for x, right in groups]
 
     def loss(w: np.ndarray) -> tuple[float, np.ndarray]:
         total, grad = l2 * float(w @ w), 2 * l2 * w
-        for x, right in groups:
-            z = (x / scale) @ w
+        for x, right in scaled:
+            z = x @ w
             p = np.exp(z - z.max())
             p /= p.sum()
             total -= float(np.log(max(p[right], 1e-300)))
-            grad = grad - (x[right] / scale - p @ (x / scale))
+            grad = grad - (x[right] - p @ x)
         return total, grad
 
     result = minimize(loss, np.zeros(len(FEATURES)), jac=True, method="L-BFGS-B")
@@ -225,12 +223,10 @@ def main() -> None:
     else:
         records = decode_corpus(recognizer)
         if args.records is not None:
-            args.records.write_text(json.dumps([to_json(record) for record in records]))
+            args.records.write_text(json.dumps([dataclasses.asdict(record) for record in records]))
     print(f"{len(records)} utterances, {sum(r.expected is not None for r in records)} of them commands")
 
-    def meaning_of(score: FormScore) -> tuple[str, str]:
-        return meaning_key(recognizer, score)
-
+    meaning_of = functools.partial(meaning_key, recognizer)
     fitted = fit(records, meaning_of)
     print(f"fitted on all tuning voices: {fitted}")
     print("\nvariant (shipped accept rules)                condition exact commands")

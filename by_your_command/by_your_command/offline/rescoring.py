@@ -101,16 +101,17 @@ def evidence_vector(candidate: Candidate, alignment: Alignment) -> tuple[float, 
     )
 
 
-def _reranking_score(candidate: Candidate, alignment: Alignment, weights: RerankWeights) -> float:
-    evidence = evidence_vector(candidate, alignment)
-    return math.fsum(weight * value for weight, value in zip(weights.as_tuple(), evidence, strict=True))
-
-
 def rescore(candidates: list[Candidate], weights: RerankWeights) -> list[Rescored]:
     """The candidates that could be aligned, best reranking score first."""
+    values = weights.as_tuple()
+
+    def reranking_score(candidate: Candidate, alignment: Alignment) -> float:
+        evidence = evidence_vector(candidate, alignment)
+        return math.fsum(weight * value for weight, value in zip(values, evidence, strict=True))
+
     ranked = sorted(
         (
-            (_reranking_score(candidate, candidate.alignment, weights), candidate.score, candidate.alignment)
+            (reranking_score(candidate, candidate.alignment), candidate.score, candidate.alignment)
             for candidate in candidates
             if candidate.alignment is not None
         ),
