@@ -10,6 +10,7 @@ graph is built once the arguments are known (an OpaqueFunction), from the same d
 from __future__ import annotations
 
 import importlib
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -67,11 +68,17 @@ def graph_actions(profile: str, context: Any) -> list[Any]:
         )
         for node in graph.nodes
     ]
-    # Agents are not ROS nodes: plain processes, each given its config with the graph's overrides.
-    run_dir = Path(tempfile.mkdtemp(prefix=f"byc-launch-{profile}-")) if graph.agents else None
+    if not graph.agents:
+        return nodes
+    # Agents are not ROS nodes: plain processes, each given its config with the graph's overrides,
+    # written to a directory that goes when the launch shuts down.
+    run_dir = Path(tempfile.mkdtemp(prefix=f"byc-launch-{profile}-"))
+    handlers = importlib.import_module("launch.event_handlers")
+    remove_run_dir = actions.RegisterEventHandler(
+        handlers.OnShutdown(on_shutdown=lambda _event, _context: shutil.rmtree(run_dir, ignore_errors=True))
+    )
     agents = []
     for agent in graph.agents:
-        assert run_dir is not None
         config_file = write_yaml(run_dir / f"{agent.name}.yaml", agent_config(agent))
         executable = substitutions.ExecutableInPackage(executable=agent.executable, package=PACKAGE)
         agents.append(
@@ -82,4 +89,4 @@ def graph_actions(profile: str, context: Any) -> list[Any]:
                 on_exit=stop_all(agent.name),
             )
         )
-    return [*nodes, *agents]
+    return [*nodes, *agents, remove_run_dir]

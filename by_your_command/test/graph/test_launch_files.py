@@ -47,15 +47,20 @@ def _recorded(name: str) -> type:
 
 @pytest.fixture
 def launch_stand_ins(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    actions = _module(
-        "launch.actions",
-        **{
-            n: _recorded(n) for n in ("DeclareLaunchArgument", "OpaqueFunction", "ExecuteProcess", "Shutdown")
-        },
+    action_names = (
+        "DeclareLaunchArgument",
+        "OpaqueFunction",
+        "ExecuteProcess",
+        "Shutdown",
+        "RegisterEventHandler",
     )
+    actions = _module("launch.actions", **{n: _recorded(n) for n in action_names})
+    handlers = _module("launch.event_handlers", OnShutdown=_recorded("OnShutdown"))
+    description = _recorded("LaunchDescription")
     modules = {
-        "launch": _module("launch", LaunchDescription=_recorded("LaunchDescription"), actions=actions),
+        "launch": _module("launch", LaunchDescription=description, actions=actions, event_handlers=handlers),
         "launch.actions": actions,
+        "launch.event_handlers": handlers,
         "launch_ros": _module("launch_ros"),
         "launch_ros.actions": _module("launch_ros.actions", Node=_recorded("Node")),
         "launch_ros.substitutions": _module(
@@ -98,7 +103,9 @@ def assert_matches(profile: str, arguments: dict[str, str], actions: list[Record
     graph = expected_graph(profile, arguments)
     nodes = [a for a in actions if type(a).__name__ == "Node"]
     processes = [a for a in actions if type(a).__name__ == "ExecuteProcess"]
-    assert len(nodes) + len(processes) == len(actions)
+    handlers = [a for a in actions if type(a).__name__ == "RegisterEventHandler"]
+    assert len(nodes) + len(processes) + len(handlers) == len(actions)
+    assert len(handlers) == (1 if processes else 0)
     assert [n.kwargs["name"] for n in nodes] == [n.name for n in graph.nodes]
     for action, node in zip(nodes, graph.nodes, strict=True):
         assert action.kwargs["package"] == "by_your_command"
@@ -115,6 +122,11 @@ def assert_matches(profile: str, arguments: dict[str, str], actions: list[Record
         assert words == ["agent", "--config"]
         original = AGENT_CONFIGS[Path(agent.config_file).name]
         assert yaml.safe_load(Path(config).read_text()) == merged(original, agent.overrides)
+    if processes:  # the agents' configs are removed when the launch shuts down
+        (on_shutdown,) = handlers[0].args
+        assert type(on_shutdown).__name__ == "OnShutdown"
+        on_shutdown.kwargs["on_shutdown"](None, None)
+        assert not any(Path(p.kwargs["cmd"][-1]).parent.exists() for p in processes)
 
 
 @pytest.mark.unit
@@ -156,7 +168,7 @@ def test_launch_file_arguments_change_the_graph(
         }
     _, actions = launch(profile, arguments)
     assert_matches(profile, arguments, actions)
-    names = [a.kwargs["name"] for a in actions]
+    names = [a.kwargs["name"] for a in actions if type(a).__name__ != "RegisterEventHandler"]
     assert "file_audio_publisher" in names and "audio_capture" not in names
     assert "mic_recorder" in names and ("voice_recorder" in names) == (profile != "byc")
     assert {a.kwargs["namespace"] for a in actions if type(a).__name__ == "Node"} == {"/grunt1/agent"}

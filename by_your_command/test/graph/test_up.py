@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,12 @@ from by_your_command.cli import up
 
 WAV = Path(__file__).resolve().parents[1] / "data" / "corpus" / "clean_en_us.wav"
 VOICE_NODES = {"file_audio_publisher", "silero_vad_node", "voice_recorder"}
+
+
+@pytest.fixture(autouse=True)
+def run_dirs_in_tmp_path(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A dry run keeps its generated files (it prints commands that use them): here, in tmp_path."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
 
 
 def voice_only(namespace: str, recordings: Path) -> list[str]:
