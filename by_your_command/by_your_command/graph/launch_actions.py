@@ -89,4 +89,4 @@ def graph_actions(profile: str, context: Any) -> list[Any]:
                 on_exit=stop_all(agent.name),
             )
         )
-    return [*nodes, *agents, remove_run_dir]
+    return [remove_run_dir, *nodes, *agents]  # registered before anything can exit
