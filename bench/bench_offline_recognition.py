@@ -5,7 +5,8 @@ other espeak voices and variants: en-us, en-gb, en-gb-scotland, en-gb-x-gbclan, 
 en-us-nyc; variants m1-m5, f1, f2, f4, f5, klatt; other speeds and pitches; a second unseen
 set, run for docs/offline.md: --voices en-us+m6 en-gb+m8 en-us+Annie en-029+m3): every command,
 phrase and question of the vocabulary in up to two spoken forms (each form said by two of the
-held-out voices), and CHAT lines (small talk, questions, sentences
+held-out voices), one polite form of every command ("can you look up please", tallied apart as
+"polite ..."), and CHAT lines (small talk, questions, sentences
 holding command words, command words in other sentences), each clean and with white noise at --snr
 dB. Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine with
 pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback without the
@@ -76,6 +77,11 @@ class Utterance:
     voice: str
     expected: SpokenForm | None  # None: chat, must be rejected
 
+    @property
+    def group(self) -> str:
+        """Polite commands are tallied apart, so the main figures compare across versions."""
+        return "polite " if self.expected is not None and self.expected.polite else ""
+
 
 def emit(figure: str, value: float, unit: str, **extra: Any) -> None:
     record = {"bench": "offline_recognition", "figure": figure, "value": round(value, 4), "unit": unit}
@@ -109,9 +115,12 @@ def with_noise(speech: Int16Array, snr_db: float, seed: int) -> Int16Array:
 
 
 def corpus(forms: list[SpokenForm], voices: tuple[str, ...], per_command: int) -> list[Utterance]:
+    """Up to `per_command` plain forms of every meaning, each said by two voices; the chat lines
+    by all; one polite form of every command meaning ("can you look up please") said by one."""
     by_meaning: dict[str, list[SpokenForm]] = collections.defaultdict(list)
+    polite: dict[str, list[SpokenForm]] = collections.defaultdict(list)
     for form in forms:
-        by_meaning[f"{form.kind.value}:{form.canonical}"].append(form)
+        (polite if form.polite else by_meaning)[f"{form.kind.value}:{form.canonical}"].append(form)
     chooser = random.Random(0)
     utterances = []
     turn = 0
@@ -122,6 +131,11 @@ def corpus(forms: list[SpokenForm], voices: tuple[str, ...], per_command: int) -
                 utterances.append(Utterance(form.words, voices[turn % len(voices)], form))
                 turn += 1
     utterances += [Utterance(text, voice, None) for text in CHAT for voice in voices]
+    # Last, so that every other utterance keeps its place and with it its noise (seeded by it).
+    polite_chooser = random.Random(1)
+    for turn, meaning in enumerate(sorted(polite)):
+        form = polite_chooser.choice(polite[meaning])
+        utterances.append(Utterance(form.words, voices[turn % len(voices)], form))
     return utterances
 
 
@@ -154,8 +168,8 @@ def measure(
             start = time.perf_counter()
             result = recognizer.recognize(pcm.tobytes(), RATE)
             elapsed = time.perf_counter() - start
-            for tally in (tallies[search][condition], tallies[search]["all"]):
-                count(tally, utterance, result, len(pcm) / RATE, elapsed)
+            for key in (condition, "all"):
+                count(tallies[search][utterance.group + key], utterance, result, len(pcm) / RATE, elapsed)
     return tallies
 
 
@@ -217,9 +231,11 @@ def main() -> None:
             (utterance, "clean", speech),
             (utterance, f"snr{args.snr:g}", with_noise(speech, args.snr, index)),
         ]
-    commands = sum(u.expected is not None for u in utterances)
-    emit("corpus", len(audio), "utterances", commands=2 * commands, chat=2 * (len(utterances) - commands),
-         voices=args.voices, synth_s=round(time.perf_counter() - start, 1))  # fmt: skip
+    commands = sum(u.expected is not None and not u.group for u in utterances)
+    polite = sum(bool(u.group) for u in utterances)
+    emit("corpus", len(audio), "utterances", commands=2 * commands, polite_commands=2 * polite,
+         chat=2 * (len(utterances) - commands - polite), voices=args.voices,
+         synth_s=round(time.perf_counter() - start, 1))  # fmt: skip
 
     results = measure(searches, audio)
     rows = []
@@ -243,12 +259,12 @@ def main() -> None:
             emit("exact_commands_by_voice", 100.0 * tallies["all"].per_voice[voice] / total, "%",
                  search=search.value, voice=voice, n=total)  # fmt: skip
 
-    print(f"\n{'search':<14}{'condition':<10}{'exact cmds':>11}{'chat->cmd':>11}{'chat->q':>9}{'RTF med':>9}")
+    print(f"\n{'search':<14}{'condition':<14}{'exact cmds':>11}{'chat->cmd':>11}{'chat->q':>9}{'RTF med':>9}")
     for search_name, condition, accuracy, as_command, as_question, chat, rtf in rows:
-        print(f"{search_name:<14}{condition:<10}{accuracy:>10.1f}%{as_command:>6}/{chat:<4}"
+        print(f"{search_name:<14}{condition:<14}{accuracy:>10.1f}%{as_command:>6}/{chat:<4}"
               f"{as_question:>5}/{chat:<3}{rtf:>9.3f}")  # fmt: skip
     for search, tallies in results.items():
-        misses, chat_taken = tallies["all"].misses, tallies["all"].chat_taken
+        misses, chat_taken = tallies["all"].misses + tallies["polite all"].misses, tallies["all"].chat_taken
         print(
             f"\n{search.value}: {len(misses)} missed commands" + (f", first {args.misses}:" if misses else "")
         )

@@ -68,7 +68,7 @@ class Record:
 
 def decode_corpus(recognizer: OfflineRecognizer) -> list[Record]:
     meanings: dict[tuple[str, str], list[str]] = {}
-    for form in recognizer.forms:
+    for form in (form for form in recognizer.forms if not form.polite):
         meanings.setdefault((form.kind.value, form.canonical), []).append(form.words)
     said: list[tuple[str, tuple[str, str] | None]] = [
         (words, meaning) for meaning, forms in sorted(meanings.items()) for words in forms

@@ -17,7 +17,9 @@ confirm_regret, again ending where the model ends. Wake/sleep/stop phrases are o
 chat holding one ("I'm freezing", "what's up", "sleep well") is a word or two away from them: a
 phrase is taken on Moonshine's word alone only up to accept_regret (nearly what it wrote freely),
 with pocketsphinx agreeing only up to phrase_regret, and never on the alignment or the reranking
-score alone.
+score alone. A polite form ("please follow me") is taken on Moonshine's word alone, up to
+near_regret: pocketsphinx does not know the polite words, and in noise Moonshine makes "please" of
+any "pl..." ("play some music").
 
 Noise raises every regret, the right form's and chat's alike: Moonshine is less sure of every
 token. Limits that keep all chat out of clean speech therefore turn away commands in noise that

@@ -198,7 +198,10 @@ class OfflineRecognizer:
         self._load_searches()
 
     def _load_searches(self) -> None:
-        words = list(self._by_words)
+        # pocketsphinx's passes know the plain forms only: optional polite words in its grammar
+        # made the search three times slower and it heard them in the noise before "turn left".
+        # Moonshine scores the polite forms; the pocketsphinx evidence is about the meaning.
+        words = [form.words for form in self.forms if not form.polite]
         if self.search is not Search.FILLER_LM:
             self._decoder.add_jsgf_string(GRAMMAR_SEARCH, jsgf_grammar(words))
         if self.search is Search.BARE_GRAMMAR:
@@ -335,7 +338,12 @@ class OfflineRecognizer:
         score = best.score
         if score.end_regret > limits.end_regret:  # the model heard more words after it
             return None
-        kind = self.forms[score.index].kind
+        form = self.forms[score.index]
+        if form.polite:
+            # On Moonshine's word alone: pocketsphinx does not know the polite words, and in noise
+            # Moonshine makes "please" of any "pl..." ("play some music" as "please follow me").
+            return score if score.regret <= limits.near_regret else None
+        kind = form.kind
         agrees = grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score)
         # A phrase on Moonshine's word alone only if it is nearly what Moonshine wrote: in noise
         # "what's up" is "wake up" at regret 1.1.

@@ -13,6 +13,7 @@ Names that are not dictionary words are split into two that are (`leftish` -> "l
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import re
 from collections.abc import Callable, Iterable
@@ -37,6 +38,7 @@ class SpokenForm:
     words: str  # lower-case dictionary words separated by single spaces
     kind: RecognitionKind
     canonical: str
+    polite: bool = False  # a command form wrapped in a polite opening or closing ("please ...")
 
 
 def _default_phrases() -> dict[str, tuple[str, ...]]:
@@ -85,6 +87,11 @@ class SpokenVocabularyConfig:
     # A lone bearing ("right") means pan@right in the command grammar, but spoken alone it is far
     # more often agreement than a command, so it is off unless asked for.
     bare_bearings: bool = False
+    # People ask robots politely: every command may also be said after an opening and/or before a
+    # closing ("please look up", "can you pan left please"). Not phrases: wake, sleep and stop
+    # stay the short exact words their stricter accept rules are built for.
+    polite_openings: tuple[str, ...] = ("please", "can you", "could you")
+    polite_closings: tuple[str, ...] = ("please",)
 
 
 def _spoken_name(name: str, aliases: dict[str, tuple[str, ...]]) -> tuple[str, ...]:
@@ -128,12 +135,12 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
     grammar = CommandGrammar(vocabulary)
     forms: dict[str, SpokenForm] = {}
 
-    def add(words: str, kind: RecognitionKind, canonical: str) -> None:
+    def add(words: str, kind: RecognitionKind, canonical: str, polite: bool = False) -> None:
         words = " ".join(words.lower().split())
         known = forms.get(words)
         if known is not None and known.canonical != canonical:
             raise ValueError(f"spoken form {words!r} means both {known.canonical!r} and {canonical!r}")
-        forms.setdefault(words, SpokenForm(words, kind, canonical))
+        forms.setdefault(words, SpokenForm(words, kind, canonical, polite))
 
     for canonical, spoken in config.phrases.items():
         _check_canonical(grammar, canonical)
@@ -151,7 +158,18 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
     for question, spoken in config.questions.items():
         for words in spoken:
             add(words, RecognitionKind.QUESTION, question)
+    commands = [form for form in forms.values() if form.kind is RecognitionKind.COMMAND]
+    for opening, closing in _politeness(config):
+        for form in commands:
+            add(f"{opening} {form.words} {closing}", form.kind, form.canonical, polite=True)
     return list(forms.values())
+
+
+def _politeness(config: SpokenVocabularyConfig) -> list[tuple[str, str]]:
+    """(opening, closing) pairs that wrap a command: at least one, and not the same twice ("please
+    ... please")."""
+    openings, closings = ("", *config.polite_openings), ("", *config.polite_closings)
+    return [(o, c) for o in openings for c in closings if (o or c) and o != c]
 
 
 def _check_canonical(grammar: CommandGrammar, canonical: str) -> None:
@@ -173,8 +191,7 @@ def pronounceable(forms: list[SpokenForm], in_dictionary: Callable[[str], bool])
         return cache[text]
 
     return [
-        SpokenForm(" ".join(word(part) for part in form.words.split()), form.kind, form.canonical)
-        for form in forms
+        dataclasses.replace(form, words=" ".join(word(part) for part in form.words.split())) for form in forms
     ]
 
 

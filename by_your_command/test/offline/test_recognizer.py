@@ -27,6 +27,8 @@ Synthesize = Callable[[str, str], bytes]
         ("go to sleep", "en-us+f3", RecognitionKind.PHRASE, "sleep"),
         ("wake up", "en-gb-x-rp", RecognitionKind.PHRASE, "wake"),
         ("what time is it", "en-us+m7", RecognitionKind.QUESTION, "time"),
+        ("please look up", "en-us+f3", RecognitionKind.COMMAND, "lookup"),
+        ("can you pan to the left please", "en-gb-x-rp", RecognitionKind.COMMAND, "pan@left"),
     ],
 )
 def test_spoken_commands_phrases_and_questions_are_recognized(
@@ -51,6 +53,8 @@ def test_spoken_commands_phrases_and_questions_are_recognized(
         ("what a lovely morning", "en-us+f3"),  # the bare grammar hears lookup@full-right
         ("the meeting starts at nine", "en-029"),  # ... and this as "tell me the time"
         ("are you a robot", "en-us+m7"),  # ... and this as move@left
+        ("can you look up a recipe", "en-us+f3"),  # a polite command that goes on
+        ("open the door please", "en-gb-x-rp"),
     ],
 )
 def test_chat_is_rejected_not_forced_into_a_command(
@@ -142,6 +146,22 @@ def test_pocketsphinx_knows_only_the_words_it_can_hear(recognizer: OfflineRecogn
     assert decoder.lookup_word("banana") is None
 
 
+@pytest.mark.unit
+def test_polite_forms_are_moonshines_alone(recognizer: OfflineRecognizer, synthesize: Synthesize) -> None:
+    """pocketsphinx's grammar pass is built from the plain forms (with polite words it searched
+    three times slower and heard "can you" in the noise before "turn left"); Moonshine scores the
+    polite forms, and pocketsphinx still aligns them."""
+    pcm = synthesize("could you turn left please", "en-us+m7")
+    evidence = recognizer.evidence(np.frombuffer(pcm, "<i2"))
+    best = recognizer.forms[evidence.forms[0].index]
+    assert best.words == "could you turn left please" and best.polite
+    assert not {"could", "please"} & set(evidence.grammar_text.split())
+    (candidate,) = [c for c in evidence.candidates if c.score.index == evidence.forms[0].index]
+    assert candidate.alignment is not None
+    result = recognizer.recognize(pcm, RATE)
+    assert (result.kind, result.canonical) == (RecognitionKind.COMMAND, "turn@left")
+
+
 def _form(recognizer: OfflineRecognizer, words: str) -> int:
     return next(i for i, form in enumerate(recognizer.forms) if form.words == words)
 
@@ -204,6 +224,22 @@ def test_a_reranking_score_that_weighs_enough_evidence_is_taken_on_its_own(
     assert choose([_rescored(FormScore(freeze, -12.0, 10.0), -2.5, 0.1, combined=strong)], None) is None
     ends_early = FormScore(look_up, -12.0, 10.0, end_regret=2.0)
     assert choose([_rescored(ends_early, per_frame=-2.5, margin=0.1, combined=strong)], None) is None
+
+
+@pytest.mark.unit
+def test_a_polite_form_is_taken_on_moonshines_word_alone(recognizer: OfflineRecognizer) -> None:
+    """In noise Moonshine makes "please" of any "pl..." ("play some music" as "please follow me"),
+    and pocketsphinx does not know the polite words: no other path takes a polite form."""
+    plain, polite = _form(recognizer, "follow me"), _form(recognizer, "please follow me")
+    limits = recognizer.config.acceptance.clean
+    choose = functools.partial(recognizer._rescored_choice, limits=limits)
+    near = limits.near_regret - 0.5
+    assert choose([_rescored(FormScore(polite, -3.0, near))], None) is not None
+    strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.evidence_score + 3.0}
+    for regret in (limits.aligned_regret - 0.5, limits.agree_regret - 0.5):
+        heard = recognizer.forms[plain]
+        assert choose([_rescored(FormScore(plain, -9.0, regret), **strong)], heard) is not None
+        assert choose([_rescored(FormScore(polite, -9.0, regret), **strong)], heard) is None
 
 
 @pytest.mark.unit

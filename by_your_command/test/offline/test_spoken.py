@@ -61,6 +61,23 @@ def test_natural_spoken_forms_map_to_canonical_commands() -> None:
 
 
 @pytest.mark.unit
+def test_commands_can_be_asked_for_politely_phrases_and_questions_cannot() -> None:
+    meaning = {form.words: form for form in FORMS}
+    polite = ("please look up", "can you pan left", "could you turn to the left please", "move ahead please")
+    for words in polite:
+        assert meaning[words].kind is RecognitionKind.COMMAND and meaning[words].polite, words
+    assert meaning["can you pan left"].canonical == "pan@left"
+    assert not meaning["pan left"].polite
+    for words in ("please stop", "can you wake up", "go to sleep please", "please what time is it"):
+        assert words not in meaning
+    assert "please look up please" not in meaning
+    plain = [form for form in FORMS if form.kind is RecognitionKind.COMMAND and not form.polite]
+    assert sum(form.polite for form in FORMS) == 6 * len(plain)  # 3 openings x (none or "please") + "please"
+    strict = build_spoken_forms(VOCABULARY, SpokenVocabularyConfig(polite_openings=(), polite_closings=()))
+    assert not any(form.polite for form in strict) and len(strict) == len(FORMS) - 6 * len(plain)
+
+
+@pytest.mark.unit
 def test_a_lone_bearing_is_a_command_only_when_asked_for() -> None:
     assert "right" not in {form.words for form in FORMS}
     with_bearings = build_spoken_forms(VOCABULARY, dataclasses.replace(CONFIG, bare_bearings=True))
