@@ -46,15 +46,8 @@ TUNING_VOICES = (
 )  # fmt: skip
 SNR_DB = 15.0
 FEATURES = tuple(field.name for field in dataclasses.fields(RerankWeights))
-PREVIOUS = RerankWeights(  # log probability + 0.04 x alignment: the score before the fit
-    logprob=1.0,
-    regret=0.0,
-    end_regret=0.0,
-    alignment=0.04,
-    alignment_per_frame=0.0,
-    grammar_agrees=0.0,
-    words=0.0,
-)
+# log probability + 0.04 x alignment: the score before the fit
+PREVIOUS = RerankWeights(**{**dict.fromkeys(FEATURES, 0.0), "logprob": 1.0, "alignment": 0.04})
 
 
 @dataclasses.dataclass(frozen=True)
