@@ -47,6 +47,13 @@ def test_voice_trigger_forwards_the_latest_frame(ros_namespace: str, graph_node:
         "max_video_fps:=0.0",
         "-p",
         "max_width:=320",
+        # Reliable frames and a long wait: a trigger that overtakes its frame (no ordering across
+        # topics) is answered when the frame lands. Best-effort 2.7 MB frames are each lost whole
+        # when one fragment is dropped, which a loaded machine does for seconds at a time.
+        "-p",
+        "image_reliable:=true",
+        "-p",
+        "trigger_wait_ms:=10000",
     ]
     with running_process(args):
         wait_for(
@@ -59,7 +66,8 @@ def test_voice_trigger_forwards_the_latest_frame(ros_namespace: str, graph_node:
             what="discovery",
         )
         # Baseline is off: only the trigger forwards. The forwarder may not have matched the
-        # camera yet when discovery says so on our side: publish until a trigger is answered.
+        # camera yet when discovery says so on our side (frames published before are not
+        # delivered): publish until a trigger is answered.
         index = 0
 
         def triggered() -> bool:
@@ -69,7 +77,7 @@ def test_voice_trigger_forwards_the_latest_frame(ros_namespace: str, graph_node:
             voice.publish(Bool(data=True))
             return bool(forwarded)
 
-        wait_for(triggered, timeout=20, interval=0.05, what="a forwarded frame")
+        wait_for(triggered, timeout=30, interval=0.5, what="a forwarded frame")
         out = forwarded[0]
         assert out.format == "jpeg" and out.header.frame_id == "camera"
         assert 1 <= out.header.stamp.sec <= index
