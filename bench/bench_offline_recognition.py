@@ -13,6 +13,7 @@ pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback
 Moonshine model) and a bare JSGF grammar (baseline). Figures as JSON lines (decode speed as the
 median real-time factor per utterance and its ratio to the baseline's), then a table, the missed
 commands and the chat lines taken.
+Another synthesizer, flite (`apt install flite`): --voices flite:slt flite:rms flite:awb flite:kal16.
 usage: scripts/run.sh python bench/bench_offline_recognition.py [--forms 2] [--snr 15] [--voices ...]
        [--searches moonshine verified bare_grammar]
 """
@@ -23,9 +24,11 @@ import argparse
 import collections
 import dataclasses
 import json
+import pathlib
 import random
 import statistics
 import subprocess
+import tempfile
 import time
 from typing import Any
 
@@ -37,6 +40,7 @@ from by_your_command.offline.spoken import RecognitionKind, SpokenForm
 
 RATE = 16000
 HELD_OUT_VOICES = ("en-us+f3", "en-us+m7", "en-gb-x-rp", "en-029")
+FLITE = "flite:"
 CHAT = (
     "I looked up the answer yesterday", "don't stop believing", "hello there, how are you today",
     "what a lovely morning", "can you hear me", "I think it might rain later", "my phone is out of battery",
@@ -89,7 +93,9 @@ def emit(figure: str, value: float, unit: str, **extra: Any) -> None:
 
 
 def synthesize(text: str, voice: str, words_per_minute: int = 150, pitch: int | None = None) -> Int16Array:
-    """espeak-ng's speech at RATE (pitch 0-99; None: the voice's own)."""
+    """espeak-ng's speech at RATE (pitch 0-99; None: the voice's own); "flite:<voice>" is flite's."""
+    if voice.startswith(FLITE):
+        return _flite(text, voice.removeprefix(FLITE))
     pitch_option = [] if pitch is None else ["-p", str(pitch)]
     wav = subprocess.run(
         ["espeak-ng", "-v", voice, "-s", str(words_per_minute), *pitch_option, "--stdout", "--stdin"],
@@ -98,6 +104,20 @@ def synthesize(text: str, voice: str, words_per_minute: int = 150, pitch: int | 
         check=True,
         timeout=30,
     ).stdout
+    return _pcm(wav)
+
+
+def _flite(text: str, voice: str) -> Int16Array:
+    """flite (`apt install flite`): another synthesizer, with voices built from recorded speech."""
+    with tempfile.TemporaryDirectory() as folder:
+        wav_path = pathlib.Path(folder, "speech.wav")
+        command = ["flite", "-voice", voice, "-o", str(wav_path)]  # the text on stdin
+        subprocess.run(command, input=text.encode(), check=True, timeout=30)
+        return _pcm(wav_path.read_bytes())
+
+
+def _pcm(wav: bytes) -> Int16Array:
+    """A canonical 44-byte-header mono WAV (what both synthesizers write) resampled to RATE."""
     rate = int.from_bytes(wav[24:28], "little")
     return resample(np.frombuffer(wav[44:], dtype="<i2").astype(np.int16), rate, RATE)
 

@@ -10,7 +10,7 @@ through a trie of the spoken forms' token sequences (a beam search restricted to
 answer is always a form, with these numbers:
 
 - `logprob`: log P(form as the whole transcript | audio), its end included: end of text, or a
-  final ".", "?" or "!" that end of text then follows (a period followed by more words is no end);
+  final ".", "?", "!" or "," that end of text then follows (a period followed by more words is no end);
 - `regret`: at each token, how much more likely the model's own top choice was than the form's
   token, summed. 0 means a free transcription would have written exactly this form; chat that only
   starts like a form ("reach for the stars" for "reach") pays at the token where it goes on;
@@ -44,7 +44,9 @@ SAMPLE_RATE = 16000
 PACKAGE = "moonshine-cpp"
 MODEL_FILES = ("encoder_model.ort", "decoder_model_merged.ort", "tokenizer.bin")
 LAYERS, HEADS, HEAD_DIM = 8, 8, 52  # Moonshine base
-FINAL_MARKS = (".", "?", "!")  # a transcript may end with one of these instead of END
+# A transcript may end with one of these instead of END. The comma: speech whose pitch does not
+# fall at the end (flite's voices, a speaker listing) is written "Pan full left," (docs/offline.md).
+FINAL_MARKS = (".", "?", "!", ",")
 
 FloatArray = npt.NDArray[np.float32]
 

@@ -150,6 +150,13 @@ def test_a_final_mark_ends_a_form_only_if_the_transcript_ends_after_it(
     _hearing(small_scorer, "Look up. To the left.", monkeypatch)
     scores = {score.index: score for score in small_scorer.score(SILENCE)}
     assert scores[0].regret > 7.0
+    # A final comma ends a form too (a voice whose pitch does not fall), a comma inside does not.
+    _hearing(small_scorer, "Look up,", monkeypatch)
+    best = small_scorer.score(SILENCE)[0]
+    assert (best.index, best.regret) == (0, pytest.approx(0.0))
+    _hearing(small_scorer, "Look up, to the left.", monkeypatch)
+    scores = {score.index: score for score in small_scorer.score(SILENCE)}
+    assert scores[0].regret > 7.0
 
 
 @pytest.mark.unit
