@@ -124,9 +124,11 @@ def test_aec_node_takes_a_48k_stereo_mic_and_refuses_absurd_rates(ros_namespace:
             audio.publish(bad)
             audio.publish(make_audio_chunk(stereo, 48000, 2, _stamp(T0)))
             probe.spin(0.01)
-            return bool(out)
+            # Several rounds: best-effort chunks may be lost on a loaded machine, and every bad
+            # chunk of the first round could be while a good one gets through.
+            return len(out) >= 5
 
-        wait_for(published, timeout=10, what="the 48 kHz mic to come out at 16 kHz")
+        wait_for(published, timeout=20, what="the 48 kHz mic to come out at 16 kHz")
         assert out[0].sample_rate == RATE and out[0].channels == 1
     assert node.stdout is not None
     assert "bad audio chunk dropped" in node.stdout.read()
