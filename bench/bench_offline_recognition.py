@@ -6,16 +6,17 @@ en-us-nyc; variants m1-m5, f1, f2, f4, f5, klatt; other speeds and pitches; a se
 set, run for docs/offline.md: --voices en-us+m6 en-gb+m8 en-us+Annie en-029+m3): every command,
 phrase and question of the vocabulary in up to two spoken forms (each form said by two of the
 held-out voices), one polite form of every command ("can you look up please", tallied apart as
-"polite ..."), and CHAT lines (small talk, questions, sentences
-holding command words, command words in other sentences), each clean and with white noise at --snr
-dB. Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine with
-pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback without the
+"polite ..."), and CHAT lines (small talk, questions, sentences holding command words, command
+words in other sentences), each clean and with noise at --snr dB: white (the default), pink
+(--noise pink: most room and machine noise) or babble (--noise babble: four other voices talking at
+once). Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine
+with pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback without the
 Moonshine model) and a bare JSGF grammar (baseline). Figures as JSON lines (decode speed as the
 median real-time factor per utterance and its ratio to the baseline's), then a table, the missed
 commands and the chat lines taken.
 Another synthesizer, flite (`apt install flite`): --voices flite:slt flite:rms flite:awb flite:kal16.
-usage: scripts/run.sh python bench/bench_offline_recognition.py [--forms 2] [--snr 15] [--voices ...]
-       [--searches moonshine verified bare_grammar]
+usage: scripts/run.sh python bench/bench_offline_recognition.py [--forms 2] [--snr 15] [--noise white]
+       [--voices ...] [--searches moonshine verified bare_grammar]
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ from __future__ import annotations
 import argparse
 import collections
 import dataclasses
+import functools
 import json
+import math
 import pathlib
 import random
 import statistics
@@ -33,6 +36,7 @@ import time
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, RecognizerConfig, Search
@@ -122,16 +126,52 @@ def _pcm(wav: bytes) -> Int16Array:
     return resample(np.frombuffer(wav[44:], dtype="<i2").astype(np.int16), rate, RATE)
 
 
-def with_noise(speech: Int16Array, snr_db: float, seed: int) -> Int16Array:
-    """White noise at snr_db below the speech's power, also 0.3 s before and after (VAD pre-roll)."""
+def with_noise(speech: Int16Array, snr_db: float, seed: int, noise: str = "white") -> Int16Array:
+    """Noise (NOISES) at snr_db below the speech's power, also 0.3 s before and after (VAD pre-roll)."""
     rng = np.random.default_rng(seed)
     signal = speech.astype(np.float64)
     active = signal[np.abs(signal) > 300]
     power = float(np.mean(active**2)) if len(active) else 1.0
     pad = int(0.3 * RATE)
-    mixed = rng.normal(0.0, np.sqrt(power / 10 ** (snr_db / 10)), len(signal) + 2 * pad)
+    mixed = NOISES[noise](len(signal) + 2 * pad, rng) * math.sqrt(power / 10 ** (snr_db / 10))
     mixed[pad : pad + len(signal)] += signal
     return np.clip(mixed, -32768, 32767).astype(np.int16)
+
+
+def _white(samples: int, rng: np.random.Generator) -> npt.NDArray[np.float64]:
+    return rng.normal(0.0, 1.0, samples)
+
+
+def _pink(samples: int, rng: np.random.Generator) -> npt.NDArray[np.float64]:
+    """Power falling 3 dB per octave, like most room and machine noise (fan, traffic, wind)."""
+    spectrum = np.fft.rfft(rng.normal(0.0, 1.0, samples))
+    frequency = np.fft.rfftfreq(samples, 1 / RATE)
+    spectrum /= np.sqrt(np.maximum(frequency, 20.0))  # flat below 20 Hz
+    pink = np.fft.irfft(spectrum, samples)
+    return pink / max(float(np.std(pink)), 1e-12)
+
+
+@functools.cache
+def _talkers() -> tuple[npt.NDArray[np.float64], ...]:
+    """Four streams of chat, for babble, in voice and variant pairs no benchmark or tuning run uses."""
+    voices = ("en-us+m3", "en-gb+f3", "en-us+f4", "en-gb-scotland+m6")
+    streams = []
+    for turn, voice in enumerate(voices):
+        lines = CHAT[turn::4][:12]
+        streams.append(np.concatenate([synthesize(line, voice).astype(np.float64) for line in lines]))
+    return tuple(stream / max(float(np.std(stream)), 1e-12) for stream in streams)
+
+
+def _babble(samples: int, rng: np.random.Generator) -> npt.NDArray[np.float64]:
+    """Four people talking at once in the background (a TV, a room), each at a random point."""
+    mixed = np.zeros(samples)
+    for stream in _talkers():
+        start = int(rng.integers(0, max(len(stream) - samples, 1)))
+        mixed += np.resize(stream[start:], samples)
+    return mixed / max(float(np.std(mixed)), 1e-12)
+
+
+NOISES = {"white": _white, "pink": _pink, "babble": _babble}
 
 
 def corpus(forms: list[SpokenForm], voices: tuple[str, ...], per_command: int) -> list[Utterance]:
@@ -189,11 +229,14 @@ def measure(
             result = recognizer.recognize(pcm.tobytes(), RATE)
             elapsed = time.perf_counter() - start
             for key in (condition, "all"):
-                count(tallies[search][utterance.group + key], utterance, result, len(pcm) / RATE, elapsed)
+                tally = tallies[search][utterance.group + key]
+                count(tally, utterance, condition, result, len(pcm) / RATE, elapsed)
     return tallies
 
 
-def count(tally: Tally, utterance: Utterance, result: Recognition, seconds: float, elapsed: float) -> None:
+def count(
+    tally: Tally, utterance: Utterance, condition: str, result: Recognition, seconds: float, elapsed: float
+) -> None:
     tally.audio_s += seconds
     tally.decode_s += elapsed
     tally.rtf.append(elapsed / seconds)
@@ -203,7 +246,9 @@ def count(tally: Tally, utterance: Utterance, result: Recognition, seconds: floa
         tally.chat_as_command += result.kind in COMMAND_KINDS
         tally.chat_as_question += result.kind is RecognitionKind.QUESTION
         if result.kind is not RecognitionKind.REJECTED:
-            tally.chat_taken.append(f"chat {utterance.text!r} ({utterance.voice}) -> {result.canonical}")
+            tally.chat_taken.append(
+                f"chat {utterance.text!r} ({utterance.voice}, {condition}) -> {result.canonical}"
+            )
         return
     tally.commands += 1
     hit = (result.kind, result.canonical) == (expected.kind, expected.canonical)
@@ -212,7 +257,7 @@ def count(tally: Tally, utterance: Utterance, result: Recognition, seconds: floa
     tally.per_voice[utterance.voice] += hit
     if not hit:
         tally.wrong_commands += result.kind in COMMAND_KINDS
-        tally.misses.append(f"{utterance.text!r} ({utterance.voice}) -> {result.text!r}")
+        tally.misses.append(f"{utterance.text!r} ({utterance.voice}, {condition}) -> {result.text!r}")
 
 
 def main() -> None:
@@ -221,6 +266,7 @@ def main() -> None:
     )
     parser.add_argument("--forms", type=int, default=2, help="spoken forms per command (default 2)")
     parser.add_argument("--snr", type=float, default=15.0, help="noise condition, dB SNR (default 15)")
+    parser.add_argument("--noise", choices=sorted(NOISES), default="white", help="noise kind (default white)")
     parser.add_argument("--voices", nargs="+", default=list(HELD_OUT_VOICES))
     parser.add_argument(
         "--misses", type=int, default=15, help="missed commands and chat lines taken listed per search"
@@ -243,13 +289,14 @@ def main() -> None:
         emit("load", time.perf_counter() - start, "s", search=search.value)
         searches[search] = recognizer
     utterances = corpus(searches[BASELINE].forms, tuple(args.voices), args.forms)
+    noisy = f"snr{args.snr:g}" if args.noise == "white" else f"{args.noise}{args.snr:g}"  # white: as before
     start = time.perf_counter()
     audio: list[tuple[Utterance, str, Int16Array]] = []
     for index, utterance in enumerate(utterances):
         speech = synthesize(utterance.text, utterance.voice)
         audio += [
             (utterance, "clean", speech),
-            (utterance, f"snr{args.snr:g}", with_noise(speech, args.snr, index)),
+            (utterance, noisy, with_noise(speech, args.snr, index, args.noise)),
         ]
     commands = sum(u.expected is not None and not u.group for u in utterances)
     polite = sum(bool(u.group) for u in utterances)

@@ -10,7 +10,11 @@ the model ends (end regret at most end_regret) and
 - or at most agree_regret, and the pocketsphinx grammar heard the same meaning;
 - or at most aligned_regret, it aligns at least aligned_per_frame (nats per 10 ms frame) and beats
   the next meaning by `margin` (in reranking score);
-- or its reranking score, which weighs all the evidence, is at least evidence_score.
+- or its reranking score, which weighs all the evidence, is at least evidence_score;
+and on these last three paths, when Moonshine wrote words of its own, its regret is at most
+written_regret_per_word per word of the form (a short form is then a word away from what was said:
+"What's up?" scores "look up" at 8.6, and pocketsphinx's grammar, which must name some form, heard
+"look up"; an empty transcript is no evidence against the form).
 Failing all that, Moonshine's best form is taken up to accept_regret, or else the
 pocketsphinx-verified form (grammar and filler model agree) if Moonshine finds that meaning within
 confirm_regret, again ending where the model ends. Wake/sleep/stop phrases are one or two words, so
@@ -48,6 +52,9 @@ class AcceptLimits:
     evidence_score: float = -4.5  # a reranking score (rescoring.py) this high is evidence enough
     confirm_regret: float = 12.0
     phrase_regret: float = 6.0
+    # Beyond near_regret, when Moonshine freely wrote words of its own: at most this regret per
+    # word of the form (a short form is then a word away from what was said).
+    written_regret_per_word: float = 3.5
 
     def __post_init__(self) -> None:
         limits = (
@@ -64,6 +71,7 @@ class AcceptLimits:
             self.margin,
             self.aligned_per_frame,
             self.evidence_score,
+            self.written_regret_per_word,
         )
         if not all(math.isfinite(value) for value in values):
             raise ValueError("the regret limits and margins must be finite")
@@ -71,15 +79,21 @@ class AcceptLimits:
             raise ValueError(
                 "need 0 <= accept_regret <= the near, agree, aligned, confirm and phrase regrets"
             )
-        if self.end_regret < 0 or self.margin < 0:
-            raise ValueError("end_regret and margin must not be negative")
+        if self.end_regret < 0 or self.margin < 0 or self.written_regret_per_word < 0:
+            raise ValueError("end_regret, margin and written_regret_per_word must not be negative")
 
 
 def _noisy_default() -> AcceptLimits:
     """Looser where two models must agree and on the alignment path, stricter on Moonshine's word
     alone (the noise suppression makes it surer of chat too: "move along" as "move ahead"). Tuning
     set, 15 dB white noise: 70.6 -> 75.6 % of commands taken, 1 -> 0 chat lines."""
-    return AcceptLimits(near_regret=2.5, agree_regret=13.0, aligned_regret=8.0, confirm_regret=16.0)
+    return AcceptLimits(
+        near_regret=2.5,
+        agree_regret=13.0,
+        aligned_regret=8.0,
+        confirm_regret=16.0,
+        written_regret_per_word=5.0,
+    )
 
 
 @dataclass(frozen=True)

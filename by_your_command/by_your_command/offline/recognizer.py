@@ -154,6 +154,10 @@ def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
     return min(regret, limits.phrase_regret) if kind is RecognitionKind.PHRASE else regret
 
 
+def _has_words(text: str) -> bool:
+    return any(character.isalnum() for character in text)
+
+
 def _rejected(reason: Rejection, text: str = "") -> Recognition:
     return Recognition(RecognitionKind.REJECTED, text, "", 0.0, reason.value)
 
@@ -302,7 +306,8 @@ class OfflineRecognizer:
         grammar = self._by_words.get(evidence.grammar_text)
         # Even a form Moonshine is sure of gives way to another meaning the reranking puts first
         # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
-        chosen = self._rescored_choice(rescore(evidence.candidates, acceptance.rerank), grammar, limits)
+        reranked = rescore(evidence.candidates, acceptance.rerank)
+        chosen = self._rescored_choice(reranked, grammar, limits, evidence.free_text)
         if chosen is None and forms[0].regret <= limits.accept_regret:
             chosen = forms[0]
         if chosen is None and grammar is not None:
@@ -329,9 +334,10 @@ class OfflineRecognizer:
         return candidates
 
     def _rescored_choice(
-        self, rescored: list[Rescored], grammar: SpokenForm | None, limits: AcceptLimits
+        self, rescored: list[Rescored], grammar: SpokenForm | None, limits: AcceptLimits, free_text: str = ""
     ) -> FormScore | None:
-        """The reranked best form if the evidence for it is strong enough (acceptance.py)."""
+        """The reranked best form if the evidence for it is strong enough (acceptance.py);
+        `free_text`: what Moonshine wrote freely."""
         if not rescored:
             return None
         best = rescored[0]
@@ -348,9 +354,15 @@ class OfflineRecognizer:
         # A phrase on Moonshine's word alone only if it is nearly what Moonshine wrote: in noise
         # "what's up" is "wake up" at regret 1.1.
         near = limits.accept_regret if kind is RecognitionKind.PHRASE else limits.near_regret
+        if score.regret <= near:
+            return score
+        # Moonshine wrote other words ("What's up?", where pocketsphinx's grammar, which must
+        # name some form, heard "look up" at regret 8.6): a short form must then be near them
+        # word for word. An empty transcript is no evidence against the form.
+        if _has_words(free_text) and score.regret > limits.written_regret_per_word * len(form.words.split()):
+            return None
         if (
-            score.regret <= near
-            or (agrees and score.regret <= _limit(kind, limits.agree_regret, limits))
+            (agrees and score.regret <= _limit(kind, limits.agree_regret, limits))
             or (
                 kind is not RecognitionKind.PHRASE
                 and score.regret <= limits.aligned_regret

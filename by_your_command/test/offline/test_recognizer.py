@@ -55,6 +55,7 @@ def test_spoken_commands_phrases_and_questions_are_recognized(
         ("are you a robot", "en-us+m7"),  # ... and this as move@left
         ("can you look up a recipe", "en-us+f3"),  # a polite command that goes on
         ("open the door please", "en-gb-x-rp"),
+        ("what's up", "en-us+f3"),  # Moonshine: "What's up?"; pocketsphinx's grammar: "look up"
     ],
 )
 def test_chat_is_rejected_not_forced_into_a_command(
@@ -206,6 +207,27 @@ def test_a_form_the_grammar_heard_too_is_taken_further_from_the_free_transcript(
     more_words = _rescored(FormScore(index, -10.0, 8.0, end_regret=1.0), per_frame=-3.0)
     assert choose([more_words], pan_left) is None
     assert choose([_rescored(FormScore(index, -12.0, 10.0), per_frame=-3.0)], pan_left) is None  # too far
+
+
+@pytest.mark.unit
+def test_a_short_form_must_be_near_the_words_moonshine_wrote(recognizer: OfflineRecognizer) -> None:
+    """Beyond Moonshine's word alone, the regret per word of the form is limited when Moonshine
+    wrote words of its own: "What's up?" is a word away from "look up"."""
+    look_up, pan_left = _form(recognizer, "look up"), _form(recognizer, "pan to the left")
+    clean, noisy = recognizer.config.acceptance.clean, recognizer.config.acceptance.noisy
+    choose = functools.partial(recognizer._rescored_choice, limits=clean)
+    heard = recognizer.forms[look_up]
+    regret = 2 * clean.written_regret_per_word + 0.5  # within agree_regret
+    assert regret <= clean.agree_regret
+    far = _rescored(FormScore(look_up, -10.0, regret))
+    assert choose([far], heard) is far.score  # Moonshine wrote nothing: no evidence against it
+    assert choose([far], heard, free_text="...") is far.score
+    assert choose([far], heard, free_text="What's up?") is None
+    assert recognizer._rescored_choice([far], heard, noisy, "What's up?") is far.score  # noise
+    near = _rescored(FormScore(look_up, -3.0, clean.near_regret))
+    assert choose([near], None, free_text="Book up.") is near.score  # Moonshine's word alone
+    longer = _rescored(FormScore(pan_left, -10.0, regret))  # four words
+    assert choose([longer], recognizer.forms[pan_left], free_text="Then to the left.") is longer.score
 
 
 @pytest.mark.unit
