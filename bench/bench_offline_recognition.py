@@ -289,7 +289,8 @@ def main() -> None:
         emit("load", time.perf_counter() - start, "s", search=search.value)
         searches[search] = recognizer
     utterances = corpus(searches[BASELINE].forms, tuple(args.voices), args.forms)
-    noisy = f"snr{args.snr:g}" if args.noise == "white" else f"{args.noise}{args.snr:g}"  # white: as before
+    # "snr15" for white noise, as in every earlier run
+    noisy = f"snr{args.snr:g}" if args.noise == "white" else f"{args.noise}{args.snr:g}"
     start = time.perf_counter()
     audio: list[tuple[Utterance, str, Int16Array]] = []
     for index, utterance in enumerate(utterances):
