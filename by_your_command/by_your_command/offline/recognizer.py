@@ -334,7 +334,7 @@ class OfflineRecognizer:
         return candidates
 
     def _rescored_choice(
-        self, rescored: list[Rescored], grammar: SpokenForm | None, limits: AcceptLimits, free_text: str = ""
+        self, rescored: list[Rescored], grammar: SpokenForm | None, limits: AcceptLimits, free_text: str
     ) -> FormScore | None:
         """The reranked best form if the evidence for it is strong enough (acceptance.py);
         `free_text`: what Moonshine wrote freely."""

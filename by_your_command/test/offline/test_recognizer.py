@@ -9,6 +9,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from by_your_command.offline.acceptance import AcceptLimits
 from by_your_command.offline.moonshine import FormScore
 from by_your_command.offline.recognizer import Evidence, OfflineRecognizer, Rejection
 from by_your_command.offline.rescoring import Alignment, Rescored, rescore
@@ -173,12 +174,21 @@ def _rescored(
     return Rescored(score, Alignment(100 * per_frame, 100), combined, margin)
 
 
+def _chooser(
+    recognizer: OfflineRecognizer, limits: AcceptLimits | None = None
+) -> Callable[..., FormScore | None]:
+    """The reranked choice under `limits` (the clean ones by default), Moonshine having written
+    nothing unless a test says what it wrote (`free_text=`)."""
+    limits = limits or recognizer.config.acceptance.clean
+    return functools.partial(recognizer._rescored_choice, limits=limits, free_text="")
+
+
 @pytest.mark.unit
 def test_the_reranked_form_is_taken_only_if_it_ends_where_the_speech_ends_and_the_evidence_holds(
     recognizer: OfflineRecognizer,
 ) -> None:
     look_up = _form(recognizer, "look up")
-    choose = functools.partial(recognizer._rescored_choice, limits=recognizer.config.acceptance.clean)
+    choose = _chooser(recognizer)
     assert choose([], None) is None
     near = FormScore(look_up, -4.0, 2.5, end_regret=0.0)
     assert choose([_rescored(near)], None) is near  # misheard a little, ends there
@@ -199,7 +209,7 @@ def test_a_form_the_grammar_heard_too_is_taken_further_from_the_free_transcript(
     index = _form(recognizer, "pan to the left")
     pan_left, pan_right = recognizer.forms[index], recognizer.forms[_form(recognizer, "pan right")]
     other_way = next(f for f in recognizer.forms if f.canonical == "pan@left" and f.words != pan_left.words)
-    choose = functools.partial(recognizer._rescored_choice, limits=recognizer.config.acceptance.clean)
+    choose = _chooser(recognizer)
     far = _rescored(FormScore(index, -10.0, 8.0, end_regret=0.0), per_frame=-3.0)
     assert choose([far], None) is None  # alone, the evidence is too weak
     assert choose([far], pan_left) is far.score and choose([far], other_way) is far.score  # either wording
@@ -215,7 +225,7 @@ def test_a_short_form_must_be_near_the_words_moonshine_wrote(recognizer: Offline
     wrote words of its own: "What's up?" is a word away from "look up"."""
     look_up, pan_left = _form(recognizer, "look up"), _form(recognizer, "pan to the left")
     clean, noisy = recognizer.config.acceptance.clean, recognizer.config.acceptance.noisy
-    choose = functools.partial(recognizer._rescored_choice, limits=clean)
+    choose = _chooser(recognizer, clean)
     heard = recognizer.forms[look_up]
     regret = 2 * clean.written_regret_per_word + 0.5  # within agree_regret
     assert regret <= clean.agree_regret
@@ -223,7 +233,7 @@ def test_a_short_form_must_be_near_the_words_moonshine_wrote(recognizer: Offline
     assert choose([far], heard) is far.score  # Moonshine wrote nothing: no evidence against it
     assert choose([far], heard, free_text="...") is far.score
     assert choose([far], heard, free_text="What's up?") is None
-    assert recognizer._rescored_choice([far], heard, noisy, "What's up?") is far.score  # noise
+    assert _chooser(recognizer, noisy)([far], heard, free_text="What's up?") is far.score  # noise
     near = _rescored(FormScore(look_up, -3.0, clean.near_regret))
     assert choose([near], None, free_text="Book up.") is near.score  # Moonshine's word alone
     longer = _rescored(FormScore(pan_left, -10.0, regret))  # four words
@@ -238,7 +248,7 @@ def test_a_reranking_score_that_weighs_enough_evidence_is_taken_on_its_own(
     (all the evidence weighed) decides, never for a phrase and never past the end."""
     look_up, freeze = _form(recognizer, "look up"), _form(recognizer, "freeze")
     limits = recognizer.config.acceptance.clean
-    choose = functools.partial(recognizer._rescored_choice, limits=limits)
+    choose = _chooser(recognizer, limits)
     far = FormScore(look_up, -12.0, 10.0)
     strong, weak = limits.evidence_score + 0.5, limits.evidence_score - 0.5
     assert choose([_rescored(far, per_frame=-2.5, margin=0.1, combined=strong)], None) is far
@@ -254,7 +264,7 @@ def test_a_polite_form_is_taken_on_moonshines_word_alone(recognizer: OfflineReco
     and pocketsphinx does not know the polite words: no other path takes a polite form."""
     plain, polite = _form(recognizer, "follow me"), _form(recognizer, "please follow me")
     limits = recognizer.config.acceptance.clean
-    choose = functools.partial(recognizer._rescored_choice, limits=limits)
+    choose = _chooser(recognizer, limits)
     near = limits.near_regret - 0.5
     assert choose([_rescored(FormScore(polite, -3.0, near))], None) is not None
     strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.evidence_score + 3.0}
@@ -268,7 +278,7 @@ def test_a_polite_form_is_taken_on_moonshines_word_alone(recognizer: OfflineReco
 def test_a_phrase_needs_stronger_evidence_than_a_command(recognizer: OfflineRecognizer) -> None:
     """Chat holding a phrase word ("I'm freezing", "what's up") is a word away from the phrase."""
     freeze, look_up = _form(recognizer, "freeze"), _form(recognizer, "look up")
-    choose = functools.partial(recognizer._rescored_choice, limits=recognizer.config.acceptance.clean)
+    choose = _chooser(recognizer)
     aligned = (-1.2, 3.0)  # aligns well, stands out
     assert choose([_rescored(FormScore(look_up, -7.0, 5.5), *aligned)], None) is not None
     assert choose([_rescored(FormScore(freeze, -7.0, 5.5), *aligned)], None) is None  # not on alignment alone

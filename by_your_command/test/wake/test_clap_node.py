@@ -79,15 +79,16 @@ def test_enabled_can_change_at_run_time_and_thresholds_cannot(ros_namespace: str
             # The services can look ready before the node's reply reaches us (a known DDS race):
             # a request not answered within 5 s is sent again (setting a parameter is idempotent).
             futures = [client.set_parameters([parameter])]
-            deadline = [time.monotonic() + 5]
+            resend_at = time.monotonic() + 5
 
             def answered() -> bool:
+                nonlocal resend_at
                 step(None)
                 if any(future.done() for future in futures):
                     return True
-                if time.monotonic() > deadline[0]:
+                if time.monotonic() > resend_at:
                     futures.append(client.set_parameters([parameter]))
-                    deadline[0] = time.monotonic() + 5
+                    resend_at = time.monotonic() + 5
                 return False
 
             wait_for(answered, timeout=30, what="set_parameters")
