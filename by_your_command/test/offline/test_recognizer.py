@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib.util
+import wave
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 from by_your_command.offline.acceptance import AcceptLimits
@@ -70,6 +74,41 @@ def test_chat_is_rejected_not_forced_into_a_command(
         Rejection.UNCONFIRMED.value,
         Rejection.NOT_A_FORM.value,
     )
+
+
+def _recorded_voice() -> tuple[npt.NDArray[np.int16], int]:
+    """The one recording of a human voice on this machine: Beckett, read aloud, shipped with
+    moonshine-cpp for its own tests."""
+    spec = importlib.util.find_spec("moonshine_cpp")
+    assert spec is not None and spec.submodule_search_locations, "moonshine-cpp is a dependency"
+    path = Path(next(iter(spec.submodule_search_locations))) / "test-data" / "beckett.wav"
+    with wave.open(str(path)) as file:
+        assert file.getnchannels() == 1 and file.getsampwidth() == 2
+        samples = np.frombuffer(file.readframes(file.getnframes()), dtype="<i2").astype(np.int16)
+        return samples, file.getframerate()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("start_s", "end_s", "words"),
+    [
+        (0.03, 3.0, "ever tried ever failed"),  # each line and 0.3 s either side
+        (3.24, 5.82, "no matter try again"),
+        (6.36, 7.71, "fail again"),
+        (7.71, 9.96, "fail better"),
+    ],
+)
+def test_a_recorded_human_voice_is_heard_word_for_word_and_its_chat_is_not_a_command(
+    recognizer: OfflineRecognizer, start_s: float, end_s: float, words: str
+) -> None:
+    """Short lines that sound like orders ("try again", "fail better") in a real voice: Moonshine
+    writes them, and no form is near enough to be taken."""
+    samples, rate = _recorded_voice()
+    utterance = samples[int(start_s * rate) : int(end_s * rate)]
+    heard = recognizer.evidence(utterance).free_text
+    assert " ".join("".join(c for c in heard.lower() if c.isalpha() or c == " ").split()) == words
+    result = recognizer.recognize(utterance.tobytes(), rate)
+    assert result.kind is RecognitionKind.REJECTED, result
 
 
 @pytest.mark.unit
