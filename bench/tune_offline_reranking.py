@@ -3,7 +3,8 @@ voices, and show what the accept rules make of them.
 
 Tuning voices are espeak-ng voices, speeds and pitches that the benchmark never uses
 (bench_offline_recognition.py holds those out): every spoken form of the vocabulary said by two of
-them, each chat line by three, clean and with white noise at 15 dB. Every utterance is decoded
+them, each chat line by three, clean and with white and pink noise at 15 dB, and each chat line in
+--chat-draws more draws of both noises (a chat line taken is rare). Every utterance is decoded
 once (OfflineRecognizer.evidence, plus pocketsphinx's filler pass) and the records saved as JSON
 (--records: read them instead of decoding again). Then:
 
@@ -16,7 +17,7 @@ once (OfflineRecognizer.evidence, plus pocketsphinx's filler pass) and the recor
   chat taken as a command, commands taken as another command; and the ceiling (the reranked best
   is the right meaning, no rejection).
 
-usage: scripts/run.sh python bench/tune_offline_reranking.py [--records FILE] [--margin 1.0]
+usage: scripts/run.sh python bench/tune_offline_reranking.py [--records FILE] [--margin 1.0] [--chat-draws 3]
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import numpy as np
 from bench_offline_recognition import CHAT, COMMAND_KINDS, synthesize, with_noise
 from scipy.optimize import minimize
 
+from by_your_command.audio.pcm import Int16Array
 from by_your_command.offline.acceptance import Acceptance, AcceptLimits
 from by_your_command.offline.moonshine import FormScore
 from by_your_command.offline.recognizer import Evidence, OfflineRecognizer
@@ -45,6 +47,7 @@ TUNING_VOICES = (
     ("en-gb-scotland+f5", 165, 50), ("en-us+m1", 150, 45), ("en-gb+m4", 160, 40),
 )  # fmt: skip
 SNR_DB = 15.0
+NOISES = (("white", "snr"), ("pink", "pink"))  # (kind, condition name as in the benchmark)
 FEATURES = tuple(field.name for field in dataclasses.fields(RerankWeights))
 # log probability + 0.04 x alignment: the score before the fit
 PREVIOUS = RerankWeights(**{**dict.fromkeys(FEATURES, 0.0), "logprob": 1.0, "alignment": 0.04})
@@ -59,7 +62,9 @@ class Record:
     filler: str  # what pocketsphinx's filler pass heard
 
 
-def decode_corpus(recognizer: OfflineRecognizer) -> list[Record]:
+def decode_corpus(recognizer: OfflineRecognizer, chat_draws: int) -> list[Record]:
+    """Every utterance clean and in each noise; then each chat line again in `chat_draws` more
+    draws of each noise (a chat line taken is rare: one draw says little)."""
     meanings: dict[tuple[str, str], list[str]] = {}
     for form in (form for form in recognizer.forms if not form.polite):
         meanings.setdefault((form.kind.value, form.canonical), []).append(form.words)
@@ -67,19 +72,29 @@ def decode_corpus(recognizer: OfflineRecognizer) -> list[Record]:
         (words, meaning) for meaning, forms in sorted(meanings.items()) for words in forms
     ]
     records = []
+    chat_said: list[tuple[int, str, Int16Array]] = []  # (turn, voice, speech)
+
+    def decode(voice: str, condition: str, expected: tuple[str, str] | None, samples: Int16Array) -> None:
+        evidence = recognizer.evidence(samples)
+        records.append(Record(voice, condition, expected, evidence, recognizer.filler_heard(samples)))
+        print(f"decoded {len(records)} utterances", end="\r", flush=True)
+
     turn = 0
     for text, expected in [*said, *((line, None) for line in CHAT)]:
         for _ in range(2 if expected else 3):
             voice, speed, pitch = TUNING_VOICES[turn % len(TUNING_VOICES)]
             turn += 1
             speech = synthesize(text, voice, speed, pitch)
-            for condition, samples in (
-                ("clean", speech),
-                (f"snr{SNR_DB:g}", with_noise(speech, SNR_DB, turn)),
-            ):
-                evidence = recognizer.evidence(samples)
-                records.append(Record(voice, condition, expected, evidence, recognizer.filler_heard(samples)))
-        print(f"decoded {len(records)} utterances", end="\r", flush=True)
+            decode(voice, "clean", expected, speech)
+            for noise, name in NOISES:
+                decode(voice, f"{name}{SNR_DB:g}", expected, with_noise(speech, SNR_DB, turn, noise))
+            if expected is None:
+                chat_said.append((turn, voice, speech))
+    for draw in range(1, chat_draws + 1):
+        for turn, voice, speech in chat_said:
+            for noise, name in NOISES:
+                samples = with_noise(speech, SNR_DB, 10000 * draw + turn - 1, noise)
+                decode(voice, f"{name}{SNR_DB:g} draw{draw}", None, samples)
     return records
 
 
@@ -153,10 +168,11 @@ class Score:
     wrong: int = 0
 
     def row(self) -> str:
-        exact, ceiling = (100.0 * n / max(self.commands, 1) for n in (self.exact, self.ceiling))
-        return (
-            f"{exact:6.1f} %  ceiling {ceiling:5.1f} %  chat->cmd {self.chat_taken:3d}  wrong {self.wrong:3d}"
-        )
+        chat = f"chat->cmd {self.chat_taken:3d}"
+        if not self.commands:  # the further noise draws hold chat lines only
+            return f"{'':30}{chat}"
+        exact, ceiling = (100.0 * n / self.commands for n in (self.exact, self.ceiling))
+        return f"{exact:6.1f} %  ceiling {ceiling:5.1f} %  {chat}  wrong {self.wrong:3d}"
 
 
 def evaluate(
@@ -196,7 +212,7 @@ def with_rerank(weights: RerankWeights, margin: float) -> Acceptance:
 
 def report(name: str, scores: dict[str, Score]) -> None:
     for condition in sorted(scores):
-        print(f"  {name:<46}{condition:<8}{scores[condition].row()}")
+        print(f"  {name:<46}{condition:<12}{scores[condition].row()}")
         record = {"bench": "offline_reranking", "variant": name, "condition": condition}
         print(json.dumps({**record, **dataclasses.asdict(scores[condition])}), flush=True)
 
@@ -207,6 +223,9 @@ def main() -> None:
     )
     parser.add_argument("--records", type=Path, help="JSON records: read if present, else written")
     parser.add_argument("--margin", type=float, default=AcceptLimits().margin, help="alignment path margin")
+    parser.add_argument(
+        "--chat-draws", type=int, default=3, help="more noise draws of each chat line (when decoding)"
+    )
     args = parser.parse_args()
     recognizer = OfflineRecognizer()
     if recognizer.search.value != "moonshine":
@@ -214,7 +233,7 @@ def main() -> None:
     if args.records is not None and args.records.exists():
         records = [from_json(item) for item in json.loads(args.records.read_text())]
     else:
-        records = decode_corpus(recognizer)
+        records = decode_corpus(recognizer, args.chat_draws)
         if args.records is not None:
             args.records.write_text(json.dumps([dataclasses.asdict(record) for record in records]))
     print(f"{len(records)} utterances, {sum(r.expected is not None for r in records)} of them commands")
@@ -222,7 +241,7 @@ def main() -> None:
     meaning_of = functools.partial(meaning_key, recognizer)
     fitted = fit(records, meaning_of)
     print(f"fitted on all tuning voices: {fitted}")
-    print("\nvariant (shipped accept rules)                condition exact commands")
+    print("\nvariant (shipped accept rules)                condition   exact commands")
     report("shipped weights", evaluate(recognizer, records, Acceptance()))
     report("previous score, margin 2", evaluate(recognizer, records, with_rerank(PREVIOUS, 2.0)))
     report(
