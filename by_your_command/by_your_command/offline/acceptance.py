@@ -86,8 +86,8 @@ class AcceptLimits:
 def _noisy_default() -> AcceptLimits:
     """Looser where Moonshine and pocketsphinx's grammar agree and on the alignment path, stricter
     on Moonshine's word alone (the noise suppression makes it surer of chat too: "move along" as
-    "move ahead"). The verified path keeps the clean limit: looser, it took 4 of 2376 tuning chat
-    lines in white and pink noise at 15 dB for 11 of 1486 commands (docs/offline.md)."""
+    "move ahead"). The verified path keeps the clean limit: up to 16 it took 4 of 2376 tuning chat
+    lines in white and pink noise at 15 dB for 6 more of 892 commands (docs/offline.md)."""
     return AcceptLimits(
         near_regret=2.5,
         agree_regret=13.0,

@@ -470,7 +470,7 @@ def test_recorded_evidence_is_decided_without_decoding_and_the_filler_pass_is_as
 def test_noise_does_not_loosen_the_verified_path(recognizer: OfflineRecognizer) -> None:
     """ "track my order" in pink noise: Moonshine wrote it word for word, both pocketsphinx passes
     heard "track the ball", which Moonshine put at regret 14.2. Under noise every regret grows, but
-    a looser verified path took more chat than commands on the tuning set (docs/offline.md)."""
+    a looser verified path took 4 tuning chat lines for 6 commands (docs/offline.md)."""
     track_the_ball = _form(recognizer, "track the ball")
     acceptance = recognizer.config.acceptance
     noisy_snr = acceptance.noisy_below_snr_db - 3.0
