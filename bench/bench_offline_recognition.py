@@ -174,6 +174,12 @@ def _babble(samples: int, rng: np.random.Generator) -> npt.NDArray[np.float64]:
 NOISES = {"white": _white, "pink": _pink, "babble": _babble}
 
 
+def noise_condition(noise: str, snr_db: float) -> str:
+    """The tally name of a noisy condition: "snr15" for white noise (as in every earlier run),
+    "pink15", "babble15"."""
+    return f"snr{snr_db:g}" if noise == "white" else f"{noise}{snr_db:g}"
+
+
 def corpus(forms: list[SpokenForm], voices: tuple[str, ...], per_command: int) -> list[Utterance]:
     """Up to `per_command` plain forms of every meaning, each said by two voices; the chat lines
     by all; one polite form of every command meaning ("can you look up please") said by one."""
@@ -289,8 +295,7 @@ def main() -> None:
         emit("load", time.perf_counter() - start, "s", search=search.value)
         searches[search] = recognizer
     utterances = corpus(searches[BASELINE].forms, tuple(args.voices), args.forms)
-    # "snr15" for white noise, as in every earlier run
-    noisy = f"snr{args.snr:g}" if args.noise == "white" else f"{args.noise}{args.snr:g}"
+    noisy = noise_condition(args.noise, args.snr)
     start = time.perf_counter()
     audio: list[tuple[Utterance, str, Int16Array]] = []
     for index, utterance in enumerate(utterances):

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_offline_recognition import CHAT, COMMAND_KINDS, synthesize, with_noise
+from bench_offline_recognition import CHAT, COMMAND_KINDS, noise_condition, synthesize, with_noise
 from scipy.optimize import minimize
 
 from by_your_command.audio.pcm import Int16Array
@@ -47,7 +47,7 @@ TUNING_VOICES = (
     ("en-gb-scotland+f5", 165, 50), ("en-us+m1", 150, 45), ("en-gb+m4", 160, 40),
 )  # fmt: skip
 SNR_DB = 15.0
-NOISES = (("white", "snr"), ("pink", "pink"))  # (kind, condition name as in the benchmark)
+NOISES = ("white", "pink")
 FEATURES = tuple(field.name for field in dataclasses.fields(RerankWeights))
 # log probability + 0.04 x alignment: the score before the fit
 PREVIOUS = RerankWeights(**{**dict.fromkeys(FEATURES, 0.0), "logprob": 1.0, "alignment": 0.04})
@@ -86,15 +86,16 @@ def decode_corpus(recognizer: OfflineRecognizer, chat_draws: int) -> list[Record
             turn += 1
             speech = synthesize(text, voice, speed, pitch)
             decode(voice, "clean", expected, speech)
-            for noise, name in NOISES:
-                decode(voice, f"{name}{SNR_DB:g}", expected, with_noise(speech, SNR_DB, turn, noise))
+            for noise in NOISES:
+                noisy = with_noise(speech, SNR_DB, turn, noise)
+                decode(voice, noise_condition(noise, SNR_DB), expected, noisy)
             if expected is None:
                 chat_said.append((turn, voice, speech))
     for draw in range(1, chat_draws + 1):
         for turn, voice, speech in chat_said:
-            for noise, name in NOISES:
+            for noise in NOISES:
                 samples = with_noise(speech, SNR_DB, 10000 * draw + turn - 1, noise)
-                decode(voice, f"{name}{SNR_DB:g} draw{draw}", None, samples)
+                decode(voice, f"{noise_condition(noise, SNR_DB)} draw{draw}", None, samples)
     return records
 
 
