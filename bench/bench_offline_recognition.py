@@ -9,14 +9,17 @@ held-out voices), one polite form of every command ("can you look up please", ta
 "polite ..."), and CHAT lines (small talk, questions, sentences holding command words, command
 words in other sentences), each clean and with noise at --snr dB: white (the default), pink
 (--noise pink: most room and machine noise) or babble (--noise babble: four other voices talking at
-once). Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine
+once). --room RT60 puts every utterance in a reverberant room first (a statistical room response:
+the direct sound and a tail of reflections decaying 60 dB in RT60 seconds, --drr dB below the
+direct sound; 0.5 s and 0 dB is a living room with the speaker about a metre from the microphone).
+Every search decodes the same audio through OfflineRecognizer in the same run: Moonshine
 with pocketsphinx as second opinion (what ships), pocketsphinx verified (the fallback without the
 Moonshine model) and a bare JSGF grammar (baseline). Figures as JSON lines (decode speed as the
 median real-time factor per utterance and its ratio to the baseline's), then a table, the missed
 commands and the chat lines taken.
 Another synthesizer, flite (`apt install flite`): --voices flite:slt flite:rms flite:awb flite:kal16.
 usage: scripts/run.sh python bench/bench_offline_recognition.py [--forms 2] [--snr 15] [--noise white]
-       [--voices ...] [--searches moonshine verified bare_grammar]
+       [--room 0.5 --drr 0] [--voices ...] [--searches moonshine verified bare_grammar]
 """
 
 from __future__ import annotations
@@ -174,6 +177,23 @@ def _babble(samples: int, rng: np.random.Generator) -> npt.NDArray[np.float64]:
 NOISES = {"white": _white, "pink": _pink, "babble": _babble}
 
 
+def in_room(speech: Int16Array, rt60_s: float, direct_to_reverberant_db: float, seed: int) -> Int16Array:
+    """Speech as a microphone across a room hears it: the direct sound, then a diffuse tail of
+    reflections decaying 60 dB in rt60_s (exponentially decaying noise, the usual statistical room
+    model), its energy direct_to_reverberant_db below the direct sound's; the tail runs on after
+    the speech, as in a VAD segment. Scaled back to the dry speech's peak level."""
+    rng = np.random.default_rng(seed)
+    length = int(rt60_s * RATE)
+    time_s = np.arange(length) / RATE
+    response = rng.normal(0.0, 1.0, length) * np.exp(-6.9 * time_s / rt60_s)  # 10**-3 at rt60_s: -60 dB
+    response[: int(0.003 * RATE)] = 0.0  # the first reflection arrives ~1 m of path after the direct sound
+    response *= math.sqrt(10 ** (-direct_to_reverberant_db / 10) / float(np.sum(response**2)))
+    response[0] = 1.0  # the direct sound
+    wet = np.convolve(speech.astype(np.float64), response)
+    wet *= float(np.max(np.abs(speech))) / max(float(np.max(np.abs(wet))), 1e-9)
+    return np.clip(wet, -32768, 32767).astype(np.int16)
+
+
 def noise_condition(noise: str, snr_db: float) -> str:
     """The tally name of a noisy condition: "snr15" for white noise (as in every earlier run),
     "pink15", "babble15"."""
@@ -273,6 +293,12 @@ def main() -> None:
     parser.add_argument("--forms", type=int, default=2, help="spoken forms per command (default 2)")
     parser.add_argument("--snr", type=float, default=15.0, help="noise condition, dB SNR (default 15)")
     parser.add_argument("--noise", choices=sorted(NOISES), default="white", help="noise kind (default white)")
+    parser.add_argument(
+        "--room", type=float, default=0.0, help="reverberation time RT60 in seconds (default 0: no room)"
+    )
+    parser.add_argument(
+        "--drr", type=float, default=0.0, help="with --room: direct-to-reverberant ratio, dB (default 0)"
+    )
     parser.add_argument("--voices", nargs="+", default=list(HELD_OUT_VOICES))
     parser.add_argument(
         "--misses", type=int, default=15, help="missed commands and chat lines taken listed per search"
@@ -285,6 +311,8 @@ def main() -> None:
         help="searches to compare (the baseline is always added)",
     )
     args = parser.parse_args()
+    if (args.room and not 0.05 <= args.room <= 3) or not math.isfinite(args.drr):
+        parser.error("--room takes 0 (no room) or 0.05 to 3 seconds, --drr a finite dB value")
 
     searches: dict[Search, OfflineRecognizer] = {}
     for search in dict.fromkeys([*args.searches, BASELINE]):
@@ -295,13 +323,16 @@ def main() -> None:
         emit("load", time.perf_counter() - start, "s", search=search.value)
         searches[search] = recognizer
     utterances = corpus(searches[BASELINE].forms, tuple(args.voices), args.forms)
-    noisy = noise_condition(args.noise, args.snr)
+    room = f"room{args.room:g} drr{args.drr:g} " if args.room else ""
+    quiet, noisy = f"{room}clean", room + noise_condition(args.noise, args.snr)
     start = time.perf_counter()
     audio: list[tuple[Utterance, str, Int16Array]] = []
     for index, utterance in enumerate(utterances):
         speech = synthesize(utterance.text, utterance.voice)
+        if args.room:
+            speech = in_room(speech, args.room, args.drr, index)
         audio += [
-            (utterance, "clean", speech),
+            (utterance, quiet, speech),
             (utterance, noisy, with_noise(speech, args.snr, index, args.noise)),
         ]
     commands = sum(u.expected is not None and not u.group for u in utterances)

@@ -24,6 +24,11 @@ with pocketsphinx agreeing only up to phrase_regret, and never on the alignment 
 score alone. A polite form ("please follow me") is taken on Moonshine's word alone, up to
 near_regret: pocketsphinx does not know the polite words, and in noise Moonshine makes "please" of
 any "pl..." ("play some music").
+Whatever the path, a form is not taken when Moonshine finds a longer form of another meaning that
+holds all its words, within longer_form_regret of it ("reach to the back right" for "reach to the
+right"): the two differ by a word Moonshine may or may not have heard, and in a reverberant room
+short words such as "back" are smeared into the next ("Reach to the band ride."), so the shorter
+form is a wrong command as often as a right one.
 
 Noise raises every regret, the right form's and chat's alike: Moonshine is less sure of every
 token. Limits that keep all chat out of clean speech therefore turn away commands in noise that
@@ -55,6 +60,9 @@ class AcceptLimits:
     # Beyond near_regret, when Moonshine freely wrote words of its own: at most this regret per
     # word of the form (a short form is then a word away from what was said).
     written_regret_per_word: float = 3.5
+    # A longer form of another meaning holding all the form's words, this near in regret, makes
+    # the form ambiguous: a word more or less ("reach to the (back) right").
+    longer_form_regret: float = 5.0
 
     def __post_init__(self) -> None:
         limits = (
@@ -72,6 +80,7 @@ class AcceptLimits:
             self.aligned_per_frame,
             self.evidence_score,
             self.written_regret_per_word,
+            self.longer_form_regret,
         )
         if not all(math.isfinite(value) for value in values):
             raise ValueError("the regret limits and margins must be finite")
@@ -79,8 +88,10 @@ class AcceptLimits:
             raise ValueError(
                 "need 0 <= accept_regret <= the near, agree, aligned, confirm and phrase regrets"
             )
-        if self.end_regret < 0 or self.margin < 0 or self.written_regret_per_word < 0:
-            raise ValueError("end_regret, margin and written_regret_per_word must not be negative")
+        if min(self.end_regret, self.margin, self.written_regret_per_word, self.longer_form_regret) < 0:
+            raise ValueError(
+                "end_regret, margin, written_regret_per_word and longer_form_regret must not be negative"
+            )
 
 
 def _noisy_default() -> AcceptLimits:

@@ -154,6 +154,12 @@ def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
     return min(regret, limits.phrase_regret) if kind is RecognitionKind.PHRASE else regret
 
 
+def _holds(longer: list[str], words: list[str]) -> bool:
+    """Whether `longer` has more words than `words` and all of them, in order."""
+    remaining = iter(longer)
+    return len(longer) > len(words) and all(word in remaining for word in words)
+
+
 def _has_words(text: str) -> bool:
     return any(character.isalnum() for character in text)
 
@@ -318,7 +324,23 @@ class OfflineRecognizer:
                 limit = _limit(grammar.kind, limits.confirm_regret, limits)
                 if same and min(s.regret for s in same) <= limit:
                     chosen = min(same, key=lambda s: s.regret)
+        if chosen is not None and self._longer_form_as_likely(chosen, forms, limits):
+            return None
         return chosen
+
+    def _longer_form_as_likely(self, chosen: FormScore, forms: list[FormScore], limits: AcceptLimits) -> bool:
+        """Whether Moonshine finds, nearly as likely as `chosen`, a form of another meaning holding
+        all its words and more: "reach to the back right" against "reach to the right", one short
+        word apart, which reverberation smears (acceptance.py)."""
+        words = self.forms[chosen.index].words.split()
+        meaning = self._meaning(chosen)
+        return any(
+            other.regret <= chosen.regret + limits.longer_form_regret
+            and other.end_regret <= limits.end_regret
+            and self._meaning(other) != meaning
+            and _holds(self.forms[other.index].words.split(), words)
+            for other in forms
+        )
 
     def _candidates(
         self, audio: bytes, forms: list[FormScore], grammar: SpokenForm | None

@@ -482,3 +482,24 @@ def test_noise_does_not_loosen_the_verified_path(recognizer: OfflineRecognizer) 
 
     assert verified(14.2) is None
     assert verified(11.0) is not None  # a command both pocketsphinx passes heard, Moonshine near it
+
+
+@pytest.mark.unit
+def test_a_form_is_not_taken_when_moonshine_finds_it_with_a_word_more_nearly_as_likely(
+    recognizer: OfflineRecognizer,
+) -> None:
+    """ "reach to the back right" in a reverberant room: Moonshine wrote "Reach to the band ride."
+    and found the form said at regret 6.1, both pocketsphinx passes heard "reach to the right"
+    (regret 8.6). One short word apart, a wrong bearing either way: neither is taken."""
+    shorter, longer = _form(recognizer, "reach to the right"), _form(recognizer, "reach to the back right")
+    acceptance = recognizer.config.acceptance
+
+    def decided(longer_regret: float, longer_form: int = longer) -> FormScore | None:
+        forms = [FormScore(longer_form, -9.8, longer_regret), FormScore(shorter, -11.0, 8.6)]
+        evidence = Evidence(99.0, forms, "Reach to the band ride.", "reach to the right", [])
+        return recognizer.decide(evidence, acceptance, lambda: "reach to the right")
+
+    assert decided(6.1) is None
+    assert decided(8.6 + acceptance.clean.longer_form_regret + 0.1) is not None  # far less likely
+    polite = _form(recognizer, "reach to the right please")  # the same meaning, a word more
+    assert decided(6.1, polite) is not None
