@@ -194,6 +194,11 @@ def in_room(speech: Int16Array, rt60_s: float, direct_to_reverberant_db: float, 
     return np.clip(wet, -32768, 32767).astype(np.int16)
 
 
+def room_condition(rt60_s: float, direct_to_reverberant_db: float) -> str:
+    """The tally name of a room (in_room): "room0.5 drr0"."""
+    return f"room{rt60_s:g} drr{direct_to_reverberant_db:g}"
+
+
 def noise_condition(noise: str, snr_db: float) -> str:
     """The tally name of a noisy condition: "snr15" for white noise (as in every earlier run),
     "pink15", "babble15"."""
@@ -323,7 +328,7 @@ def main() -> None:
         emit("load", time.perf_counter() - start, "s", search=search.value)
         searches[search] = recognizer
     utterances = corpus(searches[BASELINE].forms, tuple(args.voices), args.forms)
-    room = f"room{args.room:g} drr{args.drr:g} " if args.room else ""
+    room = room_condition(args.room, args.drr) + " " if args.room else ""
     quiet, noisy = f"{room}clean", room + noise_condition(args.noise, args.snr)
     start = time.perf_counter()
     audio: list[tuple[Utterance, str, Int16Array]] = []

@@ -4,7 +4,9 @@ voices, and show what the accept rules make of them.
 Tuning voices are espeak-ng voices, speeds and pitches that the benchmark never uses
 (bench_offline_recognition.py holds those out): every spoken form of the vocabulary said by two of
 them, each chat line by three, clean and with white and pink noise at 15 dB, and each chat line in
---chat-draws more draws of both noises (a chat line taken is rare). Every utterance is decoded
+--chat-draws more draws of both noises (a chat line taken is rare); with --room RT60 [--drr dB],
+also in a reverberant room (bench_offline_recognition.in_room), quiet and in pink noise. Every
+utterance is decoded
 once (OfflineRecognizer.evidence, plus pocketsphinx's filler pass) and the records saved as JSON
 (--records: read them instead of decoding again). Then:
 
@@ -18,6 +20,7 @@ once (OfflineRecognizer.evidence, plus pocketsphinx's filler pass) and the recor
   is the right meaning, no rejection).
 
 usage: scripts/run.sh python bench/tune_offline_reranking.py [--records FILE] [--margin 1.0] [--chat-draws 3]
+       [--room 0.5 --drr 0]
 """
 
 from __future__ import annotations
@@ -26,12 +29,21 @@ import argparse
 import dataclasses
 import functools
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from bench_offline_recognition import CHAT, COMMAND_KINDS, noise_condition, synthesize, with_noise
+from bench_offline_recognition import (
+    CHAT,
+    COMMAND_KINDS,
+    in_room,
+    noise_condition,
+    room_condition,
+    synthesize,
+    with_noise,
+)
 from scipy.optimize import minimize
 
 from by_your_command.audio.pcm import Int16Array
@@ -62,9 +74,12 @@ class Record:
     filler: str  # what pocketsphinx's filler pass heard
 
 
-def decode_corpus(recognizer: OfflineRecognizer, chat_draws: int) -> list[Record]:
-    """Every utterance clean and in each noise; then each chat line again in `chat_draws` more
-    draws of each noise (a chat line taken is rare: one draw says little)."""
+def decode_corpus(
+    recognizer: OfflineRecognizer, chat_draws: int, room: tuple[float, float] | None = None
+) -> list[Record]:
+    """Every utterance clean and in each noise, and in `room` (RT60 s, direct-to-reverberant dB)
+    quiet and in pink noise; then each chat line again in `chat_draws` more draws of each noise
+    (a chat line taken is rare: one draw says little)."""
     meanings: dict[tuple[str, str], list[str]] = {}
     for form in (form for form in recognizer.forms if not form.polite):
         meanings.setdefault((form.kind.value, form.canonical), []).append(form.words)
@@ -89,6 +104,11 @@ def decode_corpus(recognizer: OfflineRecognizer, chat_draws: int) -> list[Record
             for noise in NOISES:
                 noisy = with_noise(speech, SNR_DB, turn, noise)
                 decode(voice, noise_condition(noise, SNR_DB), expected, noisy)
+            if room is not None:
+                reverberant, name = in_room(speech, *room, turn), room_condition(*room)
+                decode(voice, name, expected, reverberant)
+                noisy = with_noise(reverberant, SNR_DB, turn, "pink")
+                decode(voice, f"{name} {noise_condition('pink', SNR_DB)}", expected, noisy)
             if expected is None:
                 chat_said.append((turn, voice, speech))
     for draw in range(1, chat_draws + 1):
@@ -213,7 +233,7 @@ def with_rerank(weights: RerankWeights, margin: float) -> Acceptance:
 
 def report(name: str, scores: dict[str, Score]) -> None:
     for condition in sorted(scores):
-        print(f"  {name:<46}{condition:<12}{scores[condition].row()}")
+        print(f"  {name:<46}{condition:<20}{scores[condition].row()}")
         record = {"bench": "offline_reranking", "variant": name, "condition": condition}
         print(json.dumps({**record, **dataclasses.asdict(scores[condition])}), flush=True)
 
@@ -227,14 +247,20 @@ def main() -> None:
     parser.add_argument(
         "--chat-draws", type=int, default=3, help="more noise draws of each chat line (when decoding)"
     )
+    parser.add_argument(
+        "--room", type=float, default=0.0, help="also in a room of this RT60, s (when decoding)"
+    )
+    parser.add_argument("--drr", type=float, default=0.0, help="with --room: direct-to-reverberant ratio, dB")
     args = parser.parse_args()
+    if (args.room and not 0.05 <= args.room <= 3) or not math.isfinite(args.drr):
+        parser.error("--room takes 0 (no room) or 0.05 to 3 seconds, --drr a finite dB value")
     recognizer = OfflineRecognizer()
     if recognizer.search.value != "moonshine":
         raise SystemExit("the Moonshine model is not installed: nothing to tune")
     if args.records is not None and args.records.exists():
         records = [from_json(item) for item in json.loads(args.records.read_text())]
     else:
-        records = decode_corpus(recognizer, args.chat_draws)
+        records = decode_corpus(recognizer, args.chat_draws, (args.room, args.drr) if args.room else None)
         if args.records is not None:
             args.records.write_text(json.dumps([dataclasses.asdict(record) for record in records]))
     print(f"{len(records)} utterances, {sum(r.expected is not None for r in records)} of them commands")
@@ -242,7 +268,7 @@ def main() -> None:
     meaning_of = functools.partial(meaning_key, recognizer)
     fitted = fit(records, meaning_of)
     print(f"fitted on all tuning voices: {fitted}")
-    print("\nvariant (shipped accept rules)                condition   exact commands")
+    print(f"\n{'variant (shipped accept rules)':<48}{'condition':<20}exact commands")
     report("shipped weights", evaluate(recognizer, records, Acceptance()))
     report("previous score, margin 2", evaluate(recognizer, records, with_rerank(PREVIOUS, 2.0)))
     report(
