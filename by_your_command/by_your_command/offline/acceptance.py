@@ -27,8 +27,8 @@ any "pl..." ("play some music").
 Whatever the path, a form is not taken when Moonshine finds a longer form of another meaning that
 holds all its words, within longer_form_regret of it ("reach to the back right" for "reach to the
 right"): the two differ by a word Moonshine may or may not have heard, and in a reverberant room
-short words such as "back" are smeared into the next ("Reach to the band ride."), so the shorter
-form is a wrong command as often as a right one.
+short words such as "back" are smeared into the next ("Reach to the band ride."): taken, the
+shorter form is often a wrong bearing.
 
 Noise raises every regret, the right form's and chat's alike: Moonshine is less sure of every
 token. Limits that keep all chat out of clean speech therefore turn away commands in noise that
