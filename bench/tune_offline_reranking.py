@@ -5,9 +5,9 @@ Tuning voices are espeak-ng voices, speeds and pitches that the benchmark never 
 (bench_offline_recognition.py holds those out): every spoken form of the vocabulary said by two of
 them, each chat line by three, clean and with white and pink noise at 15 dB, and each chat line in
 --chat-draws more draws of both noises (a chat line taken is rare); with --room RT60 [--drr dB],
-also in a reverberant room (bench_offline_recognition.in_room), quiet and in pink noise. Every
-utterance is decoded
-once (OfflineRecognizer.evidence, plus pocketsphinx's filler pass) and the records saved as JSON
+also in a reverberant room (bench_offline_recognition.in_room), quiet and in pink noise (the fits
+below then take the room's records too). Every utterance is decoded once
+(OfflineRecognizer.evidence, plus pocketsphinx's filler pass) and the records saved as JSON
 (--records: read them instead of decoding again). Then:
 
 - a conditional logit fits one weight per piece of evidence so that the right candidate of each
