@@ -199,6 +199,22 @@ def room_condition(rt60_s: float, direct_to_reverberant_db: float) -> str:
     return f"room{rt60_s:g} drr{direct_to_reverberant_db:g}"
 
 
+def add_room_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--room", type=float, default=0.0, help="reverberation time RT60 in seconds (default 0: no room)"
+    )
+    parser.add_argument(
+        "--drr", type=float, default=0.0, help="with --room: direct-to-reverberant ratio, dB (default 0)"
+    )
+
+
+def room_of(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[float, float] | None:
+    """The room the arguments ask for (RT60 s, direct-to-reverberant dB), None for none."""
+    if (args.room and not 0.05 <= args.room <= 3) or not math.isfinite(args.drr):
+        parser.error("--room takes 0 (no room) or 0.05 to 3 seconds, --drr a finite dB value")
+    return (args.room, args.drr) if args.room else None
+
+
 def noise_condition(noise: str, snr_db: float) -> str:
     """The tally name of a noisy condition: "snr15" for white noise (as in every earlier run),
     "pink15", "babble15"."""
@@ -298,12 +314,7 @@ def main() -> None:
     parser.add_argument("--forms", type=int, default=2, help="spoken forms per command (default 2)")
     parser.add_argument("--snr", type=float, default=15.0, help="noise condition, dB SNR (default 15)")
     parser.add_argument("--noise", choices=sorted(NOISES), default="white", help="noise kind (default white)")
-    parser.add_argument(
-        "--room", type=float, default=0.0, help="reverberation time RT60 in seconds (default 0: no room)"
-    )
-    parser.add_argument(
-        "--drr", type=float, default=0.0, help="with --room: direct-to-reverberant ratio, dB (default 0)"
-    )
+    add_room_arguments(parser)
     parser.add_argument("--voices", nargs="+", default=list(HELD_OUT_VOICES))
     parser.add_argument(
         "--misses", type=int, default=15, help="missed commands and chat lines taken listed per search"
@@ -316,8 +327,7 @@ def main() -> None:
         help="searches to compare (the baseline is always added)",
     )
     args = parser.parse_args()
-    if (args.room and not 0.05 <= args.room <= 3) or not math.isfinite(args.drr):
-        parser.error("--room takes 0 (no room) or 0.05 to 3 seconds, --drr a finite dB value")
+    room = room_of(parser, args)
 
     searches: dict[Search, OfflineRecognizer] = {}
     for search in dict.fromkeys([*args.searches, BASELINE]):
@@ -328,14 +338,14 @@ def main() -> None:
         emit("load", time.perf_counter() - start, "s", search=search.value)
         searches[search] = recognizer
     utterances = corpus(searches[BASELINE].forms, tuple(args.voices), args.forms)
-    room = room_condition(args.room, args.drr) + " " if args.room else ""
-    quiet, noisy = f"{room}clean", room + noise_condition(args.noise, args.snr)
+    prefix = "" if room is None else room_condition(*room) + " "
+    quiet, noisy = f"{prefix}clean", prefix + noise_condition(args.noise, args.snr)
     start = time.perf_counter()
     audio: list[tuple[Utterance, str, Int16Array]] = []
     for index, utterance in enumerate(utterances):
         speech = synthesize(utterance.text, utterance.voice)
-        if args.room:
-            speech = in_room(speech, args.room, args.drr, index)
+        if room is not None:
+            speech = in_room(speech, *room, index)
         audio += [
             (utterance, quiet, speech),
             (utterance, noisy, with_noise(speech, args.snr, index, args.noise)),

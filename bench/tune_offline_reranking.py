@@ -29,7 +29,6 @@ import argparse
 import dataclasses
 import functools
 import json
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -38,9 +37,11 @@ import numpy as np
 from bench_offline_recognition import (
     CHAT,
     COMMAND_KINDS,
+    add_room_arguments,
     in_room,
     noise_condition,
     room_condition,
+    room_of,
     synthesize,
     with_noise,
 )
@@ -247,20 +248,16 @@ def main() -> None:
     parser.add_argument(
         "--chat-draws", type=int, default=3, help="more noise draws of each chat line (when decoding)"
     )
-    parser.add_argument(
-        "--room", type=float, default=0.0, help="also in a room of this RT60, s (when decoding)"
-    )
-    parser.add_argument("--drr", type=float, default=0.0, help="with --room: direct-to-reverberant ratio, dB")
+    add_room_arguments(parser)  # when decoding: also in this room
     args = parser.parse_args()
-    if (args.room and not 0.05 <= args.room <= 3) or not math.isfinite(args.drr):
-        parser.error("--room takes 0 (no room) or 0.05 to 3 seconds, --drr a finite dB value")
+    room = room_of(parser, args)
     recognizer = OfflineRecognizer()
     if recognizer.search.value != "moonshine":
         raise SystemExit("the Moonshine model is not installed: nothing to tune")
     if args.records is not None and args.records.exists():
         records = [from_json(item) for item in json.loads(args.records.read_text())]
     else:
-        records = decode_corpus(recognizer, args.chat_draws, (args.room, args.drr) if args.room else None)
+        records = decode_corpus(recognizer, args.chat_draws, room)
         if args.records is not None:
             args.records.write_text(json.dumps([dataclasses.asdict(record) for record in records]))
     print(f"{len(records)} utterances, {sum(r.expected is not None for r in records)} of them commands")
