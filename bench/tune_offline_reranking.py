@@ -141,6 +141,7 @@ def from_json(data: dict[str, Any]) -> Record:
             str(evidence["free_text"]),
             str(evidence["grammar_text"]),
             candidates,
+            float(evidence["fall_ms"]),
         ),
         str(data["filler"]),
     )

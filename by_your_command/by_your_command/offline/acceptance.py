@@ -33,8 +33,12 @@ shorter form is often a wrong bearing.
 Noise raises every regret, the right form's and chat's alike: Moonshine is less sure of every
 token. Limits that keep all chat out of clean speech therefore turn away commands in noise that
 looser limits would take without taking chat, so an utterance whose SNR (front_end.py) is below
-`noisy_below_snr_db` is judged by `noisy`. Both sets were tuned on other espeak voices than the
-benchmark's (docs/offline.md).
+`noisy_below_snr_db` is judged by `noisy`. Reverberation has the opposite effect on chat: across
+a room pocketsphinx hears worse still than Moonshine, and its passes agree with Moonshine on forms
+that were never said ("are you a robot" verified as "can you move forward" at regret 10). A quiet
+utterance whose sounds die away slowly (front_end.fall_time_ms at least `reverberant_from_fall_ms`)
+is judged by `reverberant`: the clean limits with a stricter verified path. All sets were tuned on
+other espeak voices than the benchmark's (docs/offline.md).
 """
 
 from __future__ import annotations
@@ -107,6 +111,12 @@ def _noisy_default() -> AcceptLimits:
     )
 
 
+def _reverberant_default() -> AcceptLimits:
+    """The clean limits with the verified path at 9: on tuning voices in quiet rooms (RT60 0.3-0.6
+    s) it took 4 of 10 chat utterances acted on away for 5 of 1338 commands (docs/offline.md)."""
+    return AcceptLimits(confirm_regret=9.0)
+
+
 @dataclass(frozen=True)
 class Acceptance:
     clean: AcceptLimits = field(default_factory=AcceptLimits)
@@ -114,14 +124,24 @@ class Acceptance:
     # Below this SNR (the loud frames over the background, front_end.Cleaned.snr_db) the noisy
     # limits hold.
     noisy_below_snr_db: float = 20.0
+    reverberant: AcceptLimits = field(default_factory=_reverberant_default)
+    # A quiet utterance whose steepest falls take this long (front_end.fall_time_ms; straight into
+    # a microphone mostly 10-80 ms, in a room with RT60 0.5 s 120-220 ms) is judged by `reverberant`.
+    reverberant_from_fall_ms: float = 100.0
     rescore_meanings: int = 4
     rerank: RerankWeights = field(default_factory=RerankWeights)
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.noisy_below_snr_db):
             raise ValueError("noisy_below_snr_db must be finite")
+        if not 0.0 < self.reverberant_from_fall_ms < math.inf:
+            raise ValueError("reverberant_from_fall_ms must be positive and finite")
         if self.rescore_meanings < 1:
             raise ValueError("rescore_meanings must be at least 1")
 
-    def limits(self, snr_db: float) -> AcceptLimits:
-        return self.noisy if snr_db < self.noisy_below_snr_db else self.clean
+    def limits(self, snr_db: float, fall_ms: float) -> AcceptLimits:
+        """The limits for an utterance of this SNR and fall time (front_end.py). Noise decides
+        first: under it the fall time cannot be seen (its peaks have no room to fall)."""
+        if snr_db < self.noisy_below_snr_db:
+            return self.noisy
+        return self.reverberant if fall_ms >= self.reverberant_from_fall_ms else self.clean

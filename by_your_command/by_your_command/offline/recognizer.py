@@ -6,10 +6,10 @@ ships in the moonshine-cpp wheel) how well each spoken form explains the noise-s
 utterance (front_end.py). pocketsphinx is a second opinion: it forced-aligns Moonshine's leading
 meanings to the audio and its grammar pass names the meaning it heard, which reranks them
 (rescoring.py), and the reranked best is accepted when the evidence of both models is strong
-enough (acceptance.py: looser limits for a noisy utterance); failing that, Moonshine's best form
-if a free transcription would have written almost exactly that form, or pocketsphinx's verified
-form if Moonshine finds it near enough. Without the model it falls back to pocketsphinx alone
-(`Search.VERIFIED`, below).
+enough (acceptance.py: looser limits for a noisy utterance, a stricter verified path for a
+reverberant one); failing that, Moonshine's best form if a free transcription would have written
+almost exactly that form, or pocketsphinx's verified form if Moonshine finds it near enough.
+Without the model it falls back to pocketsphinx alone (`Search.VERIFIED`, below).
 
 pocketsphinx (its en-us model ships in the wheel) decodes twice, with two models generated from
 the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, which is accurate
@@ -42,7 +42,7 @@ from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
 from by_your_command.offline.acceptance import Acceptance, AcceptLimits
 from by_your_command.offline.filler_words import FILLER_WORDS
-from by_your_command.offline.front_end import Cleaned, NoiseSuppression, suppress_noise
+from by_your_command.offline.front_end import Cleaned, NoiseSuppression, fall_time_ms, suppress_noise
 from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
 from by_your_command.offline.moonshine import (
     FormScore,
@@ -147,6 +147,7 @@ class Evidence:
     free_text: str  # Moonshine's own transcript
     grammar_text: str  # pocketsphinx's grammar pass ("" when it heard nothing, or was not run)
     candidates: list[Candidate]  # the leading meanings with pocketsphinx's evidence (rescoring.py)
+    fall_ms: float = 0.0  # how slowly its sounds die away: reverberation (front_end.fall_time_ms)
 
 
 def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
@@ -268,8 +269,8 @@ class OfflineRecognizer:
     def _moonshine(self, samples: Int16Array) -> Recognition:
         """Moonshine's leading meanings reranked with pocketsphinx's evidence; the reranked best if
         the evidence for it holds, else Moonshine's best form if it is (nearly) what Moonshine
-        would write freely, else the pocketsphinx-verified form (acceptance.py, with the noisy
-        limits when the utterance is noisy). Confidence exp(-regret)."""
+        would write freely, else the pocketsphinx-verified form (acceptance.py, with the noisy or
+        reverberant limits when the utterance is so). Confidence exp(-regret)."""
         evidence = self.evidence(samples)
         chosen = self.decide(evidence, self.config.acceptance, lambda: self.filler_heard(samples))
         if chosen is None:
@@ -286,15 +287,16 @@ class OfflineRecognizer:
         meanings."""
         assert self._scorer is not None
         cleaned = self._moonshine_input(samples)
+        fall_ms = fall_time_ms(samples.astype(np.float32) / 32768.0, DECODER_RATE)
         with self._lock:
             analysis = self._scorer.analyse(cleaned.audio)
             self.stats.decoded += 1
         if not analysis.forms:
-            return Evidence(cleaned.snr_db, [], analysis.free.text, "", [])
+            return Evidence(cleaned.snr_db, [], analysis.free.text, "", [], fall_ms)
         audio = self._prepared(samples)
         grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
         candidates = self._candidates(audio, analysis.forms, self._by_words.get(grammar))
-        return Evidence(cleaned.snr_db, analysis.forms, analysis.free.text, grammar, candidates)
+        return Evidence(cleaned.snr_db, analysis.forms, analysis.free.text, grammar, candidates, fall_ms)
 
     def filler_heard(self, samples: Int16Array) -> str:
         """What pocketsphinx's filler model hears in a 16 kHz utterance ("" for nothing)."""
@@ -308,7 +310,7 @@ class OfflineRecognizer:
         forms = evidence.forms
         if not forms:
             return None
-        limits = acceptance.limits(evidence.snr_db)
+        limits = acceptance.limits(evidence.snr_db, evidence.fall_ms)
         grammar = self._by_words.get(evidence.grammar_text)
         # Even a form Moonshine is sure of gives way to another meaning the reranking puts first
         # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.

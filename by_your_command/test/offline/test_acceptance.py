@@ -1,4 +1,4 @@
-"""acceptance: the accept limits are checked, and noisy utterances are judged by their own."""
+"""acceptance: the accept limits are checked, and noisy and reverberant utterances are judged by their own."""
 
 from __future__ import annotations
 
@@ -35,12 +35,29 @@ def test_limits_are_checked() -> None:
         Acceptance(rescore_meanings=0)
     with pytest.raises(ValueError, match="noisy_below_snr_db"):
         Acceptance(noisy_below_snr_db=math.nan)
+    for bad_fall in (0.0, -5.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="reverberant_from_fall_ms"):
+            Acceptance(reverberant_from_fall_ms=bad_fall)
 
 
 @pytest.mark.unit
-def test_noisy_utterances_get_the_noisy_limits() -> None:
-    clean, noisy = AcceptLimits(near_regret=3.0), AcceptLimits(near_regret=4.0)
-    acceptance = Acceptance(clean=clean, noisy=noisy, noisy_below_snr_db=20.0)
-    assert acceptance.limits(12.0) is noisy
-    assert acceptance.limits(20.0) is clean and acceptance.limits(99.0) is clean
-    assert Acceptance().noisy != Acceptance().clean  # the shipped limits differ
+def test_noisy_and_reverberant_utterances_get_their_own_limits() -> None:
+    clean, noisy, reverberant = (
+        AcceptLimits(near_regret=3.0),
+        AcceptLimits(near_regret=4.0),
+        AcceptLimits(near_regret=2.0),
+    )
+    acceptance = Acceptance(
+        clean=clean,
+        noisy=noisy,
+        reverberant=reverberant,
+        noisy_below_snr_db=20.0,
+        reverberant_from_fall_ms=100.0,
+    )
+    assert acceptance.limits(12.0, 0.0) is noisy
+    assert acceptance.limits(20.0, 0.0) is clean and acceptance.limits(99.0, 99.0) is clean
+    assert acceptance.limits(99.0, 100.0) is reverberant and acceptance.limits(25.0, 180.0) is reverberant
+    assert acceptance.limits(12.0, 180.0) is noisy  # under noise the fall time is not seen
+    shipped = Acceptance()  # the shipped limits differ
+    assert shipped.noisy != shipped.clean
+    assert shipped.reverberant.confirm_regret < shipped.clean.confirm_regret

@@ -1,4 +1,5 @@
-"""front_end.suppress_noise: stationary background reduced, clean audio left as it is, the SNR told."""
+"""front_end: stationary background reduced, clean audio left as it is, the SNR told; reverberation
+seen in how slowly sounds die away (fall_time_ms)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from by_your_command.offline.front_end import NO_BACKGROUND_DB, NoiseSuppression, suppress_noise
+from by_your_command.offline.acceptance import Acceptance
+from by_your_command.offline.front_end import NO_BACKGROUND_DB, NoiseSuppression, fall_time_ms, suppress_noise
 
 RATE = 16000
 
@@ -75,3 +77,44 @@ def test_nonsense_settings_are_refused() -> None:
 def test_audio_without_a_quieter_stretch_is_not_mistaken_for_noise() -> None:
     steady = (0.3 * np.sin(2 * np.pi * 440 * np.arange(RATE) / RATE)).astype(np.float32)
     assert suppress_noise(steady, NoiseSuppression()).audio is steady
+
+
+def _words(seed: int = 2) -> np.ndarray:
+    """Eight 0.12 s syllables (a tone roughened by noise), each ending abruptly, 0.06 s apart."""
+    rng = np.random.default_rng(seed)
+    audio = np.zeros(int(1.8 * RATE), dtype=np.float32)
+    for start in np.arange(0.1, 1.5, 0.18):
+        span = slice(int(start * RATE), int((start + 0.12) * RATE))
+        carrier = np.sin(2 * np.pi * 300 * np.arange(span.stop - span.start) / RATE)
+        audio[span] = 0.2 * carrier * (1 + 0.3 * rng.normal(size=span.stop - span.start))
+    return audio
+
+
+def _in_room(audio: np.ndarray, rt60_s: float, seed: int = 3) -> np.ndarray:
+    """The direct sound plus a diffuse tail decaying 60 dB in rt60_s, as loud as the direct sound."""
+    time = np.arange(int(rt60_s * RATE)) / RATE
+    tail = np.random.default_rng(seed).normal(size=len(time)) * np.exp(-6.9 * time / rt60_s)
+    tail[: int(0.003 * RATE)] = 0.0
+    response = tail / np.sqrt(np.sum(tail**2))
+    response[0] = 1.0
+    return np.convolve(audio, response).astype(np.float32)
+
+
+@pytest.mark.unit
+def test_sounds_die_away_slowly_in_a_reverberant_room() -> None:
+    threshold = Acceptance().reverberant_from_fall_ms
+    dry = _words()
+    assert 0.0 < fall_time_ms(dry) < threshold / 2
+    assert fall_time_ms(_in_room(dry, 0.5)) > threshold  # a 20 dB fall takes ~167 ms
+    # Other rates tell the same.
+    at_48k = np.repeat(_in_room(dry, 0.5), 3)
+    assert fall_time_ms(at_48k, 48000) > threshold
+
+
+@pytest.mark.unit
+def test_no_fall_time_is_told_where_nothing_can_fall_far_enough() -> None:
+    """Under noise no peak has room to fall 20 dB: 0.0, which tells nothing of a room."""
+    noisy = _words() + np.random.default_rng(4).normal(0.0, 0.02, int(1.8 * RATE)).astype(np.float32)
+    assert fall_time_ms(noisy) == 0.0
+    assert fall_time_ms(_words()[:500]) == 0.0  # too short
+    assert fall_time_ms(np.zeros(RATE, dtype=np.float32)) == 0.0  # silence

@@ -503,3 +503,34 @@ def test_a_form_is_not_taken_when_moonshine_finds_it_with_a_word_more_nearly_as_
     assert decided(8.6 + acceptance.clean.longer_form_regret + 0.1) is not None  # far less likely
     polite = _form(recognizer, "reach to the right please")  # the same meaning, a word more
     assert decided(6.1, polite) is not None
+
+
+@pytest.mark.unit
+def test_a_reverberant_utterance_is_judged_by_the_reverberant_limits(
+    recognizer: OfflineRecognizer, synthesize: Synthesize
+) -> None:
+    """ "are you a robot" across a room: Moonshine wrote it word for word, both pocketsphinx passes
+    heard "move forward", and Moonshine put "can you move forward" at regret 10. Straight into the
+    microphone that verified form is a command; across a room pocketsphinx is too often wrong."""
+    polite = _form(recognizer, "can you move forward")
+    acceptance = recognizer.config.acceptance
+
+    def verified(fall_ms: float) -> FormScore | None:
+        evidence = Evidence(
+            99.0, [FormScore(polite, -14.0, 10.0)], "Are you a robot?", "move forward", [], fall_ms
+        )
+        return recognizer.decide(evidence, acceptance, lambda: "move forward")
+
+    assert verified(40.0) is not None
+    assert verified(acceptance.reverberant_from_fall_ms + 20.0) is None
+    # The evidence tells the room: the same words straight in, and with a tail decaying 60 dB in 0.5 s.
+    speech = np.frombuffer(synthesize("look up", "en-us+m7"), dtype="<i2").astype(np.float64)
+    time = np.arange(RATE // 2) / RATE
+    tail = np.random.default_rng(5).normal(size=len(time)) * np.exp(-6.9 * time / 0.5)
+    tail[: int(0.003 * RATE)] = 0.0  # the first reflection after the direct sound
+    response = tail / np.sqrt(np.sum(tail**2))
+    response[0] = 1.0
+    room = np.convolve(speech, response)
+    room = (room * np.abs(speech).max() / np.abs(room).max()).astype("<i2")
+    assert recognizer.evidence(speech.astype("<i2")).fall_ms < acceptance.reverberant_from_fall_ms
+    assert recognizer.evidence(room).fall_ms > acceptance.reverberant_from_fall_ms
