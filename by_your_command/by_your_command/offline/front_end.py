@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -107,13 +108,14 @@ def _decision_directed_gain(
     return gain
 
 
-def fall_time_ms(audio: FloatArray, rate: int = 16000) -> float:
+def fall_time_ms(audio: npt.NDArray[np.floating[Any] | np.integer[Any]], rate: int = 16000) -> float:
     """How fast the utterance's sounds die away: for each peak of its energy envelope, the time
     until the energy is FALL_DB lower, and of those times the FALL_PERCENTILE-th percentile.
     Straight into a microphone a word's end falls 20 dB within 10-60 ms; in a room its reflections
     hold the energy up (a tail decaying 60 dB in 0.5 s takes 167 ms to fall 20 dB), so even the
     steepest falls take 100 ms and more. Only peaks with room to fall above the background count:
-    0.0 when there are none (noisy or flat audio, too short), which tells nothing of a room."""
+    0.0 when there are none (noisy or flat audio, too short), which tells nothing of a room. Audio
+    at any scale (int16 or float): only ratios count."""
     frame, hop = FALL_FRAME * rate // 16000, FALL_HOP * rate // 16000
     if len(audio) < 4 * frame:
         return 0.0

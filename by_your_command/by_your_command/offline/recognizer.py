@@ -287,7 +287,7 @@ class OfflineRecognizer:
         meanings."""
         assert self._scorer is not None
         cleaned = self._moonshine_input(samples)
-        fall_ms = fall_time_ms(samples.astype(np.float32) / 32768.0, DECODER_RATE)
+        fall_ms = fall_time_ms(samples, DECODER_RATE)
         with self._lock:
             analysis = self._scorer.analyse(cleaned.audio)
             self.stats.decoded += 1

@@ -1,4 +1,4 @@
-"""Shared fixtures of the offline engine tests: one recognizer, speech synthesized into tmp."""
+"""Shared fixtures of the offline engine tests: one recognizer, speech synthesized into tmp, a room."""
 
 from __future__ import annotations
 
@@ -34,3 +34,19 @@ def synthesize(tmp_path: Path) -> Callable[[str, str], bytes]:
         return bytes(resample(samples, rate, 16000).tobytes())
 
     return speak
+
+
+@pytest.fixture
+def in_room() -> Callable[[np.ndarray, float], np.ndarray]:
+    """Audio (16 kHz) as heard across a room: the direct sound plus a diffuse tail decaying 60 dB
+    in rt60_s, as loud as the direct sound (the benchmark's room at 0 dB DRR), as float64."""
+
+    def reverberate(audio: np.ndarray, rt60_s: float) -> np.ndarray:
+        time = np.arange(int(rt60_s * 16000)) / 16000
+        tail = np.random.default_rng(3).normal(size=len(time)) * np.exp(-6.9 * time / rt60_s)
+        tail[:48] = 0.0  # the first reflection 3 ms after the direct sound
+        response = tail / np.sqrt(np.sum(tail**2))
+        response[0] = 1.0
+        return np.convolve(audio.astype(np.float64), response)
+
+    return reverberate

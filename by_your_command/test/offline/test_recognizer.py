@@ -507,7 +507,7 @@ def test_a_form_is_not_taken_when_moonshine_finds_it_with_a_word_more_nearly_as_
 
 @pytest.mark.unit
 def test_a_reverberant_utterance_is_judged_by_the_reverberant_limits(
-    recognizer: OfflineRecognizer, synthesize: Synthesize
+    recognizer: OfflineRecognizer, synthesize: Synthesize, in_room: Callable[[np.ndarray, float], np.ndarray]
 ) -> None:
     """ "are you a robot" across a room: Moonshine wrote it word for word, both pocketsphinx passes
     heard "move forward", and Moonshine put "can you move forward" at regret 10. Straight into the
@@ -524,13 +524,8 @@ def test_a_reverberant_utterance_is_judged_by_the_reverberant_limits(
     assert verified(40.0) is not None
     assert verified(acceptance.reverberant_from_fall_ms + 20.0) is None
     # The evidence tells the room: the same words straight in, and with a tail decaying 60 dB in 0.5 s.
-    speech = np.frombuffer(synthesize("look up", "en-us+m7"), dtype="<i2").astype(np.float64)
-    time = np.arange(RATE // 2) / RATE
-    tail = np.random.default_rng(5).normal(size=len(time)) * np.exp(-6.9 * time / 0.5)
-    tail[: int(0.003 * RATE)] = 0.0  # the first reflection after the direct sound
-    response = tail / np.sqrt(np.sum(tail**2))
-    response[0] = 1.0
-    room = np.convolve(speech, response)
+    speech = np.frombuffer(synthesize("look up", "en-us+m7"), dtype="<i2")
+    room = in_room(speech, 0.5)
     room = (room * np.abs(speech).max() / np.abs(room).max()).astype("<i2")
-    assert recognizer.evidence(speech.astype("<i2")).fall_ms < acceptance.reverberant_from_fall_ms
+    assert recognizer.evidence(speech).fall_ms < acceptance.reverberant_from_fall_ms
     assert recognizer.evidence(room).fall_ms > acceptance.reverberant_from_fall_ms
