@@ -112,6 +112,29 @@ def test_a_recorded_human_voice_is_heard_word_for_word_and_its_chat_is_not_a_com
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("where", ["white noise at 10 dB", "a room"])
+def test_a_recorded_human_voice_in_noise_or_across_a_room_is_still_no_command(
+    recognizer: OfflineRecognizer, in_room: Callable[[np.ndarray, float], np.ndarray], where: str
+) -> None:
+    """The same lines, where both models hear worse and limits are looser (noise) or a room's
+    reflections smear the words."""
+    samples, rate = _recorded_voice()
+    rng = np.random.default_rng(11)
+    for start_s, end_s in ((0.03, 3.0), (3.24, 5.82), (6.36, 7.71), (7.71, 9.96)):
+        line = samples[int(start_s * rate) : int(end_s * rate)].astype(np.float64)
+        if where == "a room":
+            heard = in_room(line, 0.5)
+            heard *= np.abs(line).max() / np.abs(heard).max()
+        else:
+            noise = rng.normal(0.0, np.sqrt(np.mean(line**2) / 10.0), len(line) + 2 * rate // 4)
+            heard = noise
+            heard[rate // 4 : rate // 4 + len(line)] += line
+        utterance = np.clip(heard, -32768, 32767).astype("<i2")
+        result = recognizer.recognize(utterance.tobytes(), rate)
+        assert result.kind is RecognitionKind.REJECTED, (where, start_s, result)
+
+
+@pytest.mark.unit
 def test_audio_at_another_rate_is_resampled_before_decoding(
     recognizer: OfflineRecognizer, synthesize: Synthesize
 ) -> None:
