@@ -39,7 +39,8 @@ def synthesize(tmp_path: Path) -> Callable[[str, str], bytes]:
 @pytest.fixture
 def in_room() -> Callable[[np.ndarray, float], np.ndarray]:
     """Audio (16 kHz) as heard across a room: the direct sound plus a diffuse tail decaying 60 dB
-    in rt60_s, as loud as the direct sound (the benchmark's room at 0 dB DRR), as float64."""
+    in rt60_s, as loud as the direct sound (the benchmark's room at 0 dB DRR), as float64 scaled
+    back to the dry audio's peak."""
 
     def reverberate(audio: np.ndarray, rt60_s: float) -> np.ndarray:
         time = np.arange(int(rt60_s * 16000)) / 16000
@@ -47,6 +48,7 @@ def in_room() -> Callable[[np.ndarray, float], np.ndarray]:
         tail[:48] = 0.0  # the first reflection 3 ms after the direct sound
         response = tail / np.sqrt(np.sum(tail**2))
         response[0] = 1.0
-        return np.convolve(audio.astype(np.float64), response)
+        wet = np.convolve(audio.astype(np.float64), response)
+        return wet * (np.abs(audio).max() / max(np.abs(wet).max(), 1e-9))
 
     return reverberate
