@@ -17,18 +17,22 @@ written_regret_per_word per word of the form (a short form is then a word away f
 "look up"; an empty transcript is no evidence against the form).
 Failing all that, Moonshine's best form is taken up to accept_regret, or else the
 pocketsphinx-verified form (grammar and filler model agree) if Moonshine finds that meaning within
-confirm_regret, again ending where the model ends. Wake/sleep/stop phrases are one or two words, so
-chat holding one ("I'm freezing", "what's up", "sleep well") is a word or two away from them: a
-phrase is taken on Moonshine's word alone only up to accept_regret (nearly what it wrote freely),
-with pocketsphinx agreeing only up to phrase_regret, and never on the alignment or the reranking
-score alone. A polite form ("please follow me") is taken on Moonshine's word alone, up to
-near_regret: pocketsphinx does not know the polite words, and in noise Moonshine makes "please" of
-any "pl..." ("play some music").
-Whatever the path, a form is not taken when Moonshine finds a longer form of another meaning that
-holds all its words, within longer_form_regret of it ("reach to the back right" for "reach to the
-right"): the two differ by a word Moonshine may or may not have heard, and in a reverberant room
-short words such as "back" are smeared into the next ("Reach to the band ride."): taken, the
-shorter form is often a wrong bearing.
+confirm_regret, again ending where the model ends, and, when Moonshine wrote words of its own,
+within confirm_written_regret_per_word per word of the form (people recorded saying "up" and
+"off": Moonshine wrote "Up." and "Office.", both pocketsphinx passes heard "bumper" and "stop").
+Wake/sleep/stop phrases are one or two words, so chat holding one ("I'm freezing", "what's up",
+"sleep well") is a word or two away from them: a phrase is taken on Moonshine's word alone only up
+to accept_regret (nearly what it wrote freely), with pocketsphinx agreeing only up to
+phrase_regret, and never on the alignment or the reranking score alone. A polite form ("please
+follow me") is taken on Moonshine's word alone, up to near_regret: pocketsphinx does not know the
+polite words, and in noise Moonshine makes "please" of any "pl..." ("play some music").
+Whatever the path, beyond accept_regret a form is not taken when Moonshine wrote some of its words
+and nothing else ("Left" for "reach left", "Up." for "look up": a word said alone, the rest of the
+form unheard), nor when Moonshine finds a longer form of another meaning that holds all its words,
+within longer_form_regret of it ("reach to the back right" for "reach to the right"): the two
+differ by a word Moonshine may or may not have heard, and in a reverberant room short words such
+as "back" are smeared into the next ("Reach to the band ride."): taken, the shorter form is often
+a wrong bearing.
 
 Noise raises every regret, the right form's and chat's alike: Moonshine is less sure of every
 token. Limits that keep all chat out of clean speech therefore turn away commands in noise that
@@ -64,6 +68,9 @@ class AcceptLimits:
     # Beyond near_regret, when Moonshine freely wrote words of its own: at most this regret per
     # word of the form (a short form is then a word away from what was said).
     written_regret_per_word: float = 3.5
+    # The same on the verified path (pocketsphinx's two passes agree), looser: there Moonshine
+    # often writes other words for espeak's commands ("Lume my hand" for "move ahead").
+    confirm_written_regret_per_word: float = 5.0
     # A longer form of another meaning holding all the form's words, this near in regret, makes
     # the form ambiguous: a word more or less ("reach to the (back) right").
     longer_form_regret: float = 5.0
@@ -84,6 +91,7 @@ class AcceptLimits:
             self.aligned_per_frame,
             self.evidence_score,
             self.written_regret_per_word,
+            self.confirm_written_regret_per_word,
             self.longer_form_regret,
         )
         if not all(math.isfinite(value) for value in values):
@@ -92,9 +100,10 @@ class AcceptLimits:
             raise ValueError(
                 "need 0 <= accept_regret <= the near, agree, aligned, confirm and phrase regrets"
             )
-        if min(self.end_regret, self.margin, self.written_regret_per_word, self.longer_form_regret) < 0:
+        written = (self.written_regret_per_word, self.confirm_written_regret_per_word)
+        if min(self.end_regret, self.margin, *written, self.longer_form_regret) < 0:
             raise ValueError(
-                "end_regret, margin, written_regret_per_word and longer_form_regret must not be negative"
+                "end_regret, margin, the written regrets per word and longer_form_regret must not be negative"
             )
 
 

@@ -29,6 +29,7 @@ import enum
 import logging
 import math
 import os
+import re
 import tempfile
 import threading
 from collections import Counter
@@ -57,6 +58,7 @@ from by_your_command.offline.spoken import (
     SpokenVocabularyConfig,
     build_spoken_forms,
     pronounceable,
+    said_again,
     written_forms,
 )
 
@@ -165,6 +167,11 @@ def _has_words(text: str) -> bool:
     return any(character.isalnum() for character in text)
 
 
+def _words(text: str) -> list[str]:
+    """A transcript's words, lower case, without punctuation ("Left, left." -> left, left)."""
+    return re.findall(r"[a-z0-9']+", text.lower())
+
+
 def _rejected(reason: Rejection, text: str = "") -> Recognition:
     return Recognition(RecognitionKind.REJECTED, text, "", 0.0, reason.value)
 
@@ -184,7 +191,13 @@ class OfflineRecognizer:
         known = pronunciations.__contains__
         named = build_spoken_forms(self.vocabulary, self.config.spoken)
         self.forms: list[SpokenForm] = pronounceable(named, known)
-        self._written = [written_forms(a.words, b.words) for a, b in zip(named, self.forms, strict=True)]
+        written = [written_forms(a.words, b.words) for a, b in zip(named, self.forms, strict=True)]
+        # Wake, sleep and stop said again are still that phrase ("stop, stop!"); a command said
+        # twice might mean twice, and is left to be said once.
+        self._written = [
+            said_again(ways) if form.kind is RecognitionKind.PHRASE else ways
+            for form, ways in zip(self.forms, written, strict=True)
+        ]
         self._by_words = {form.words: form for form in self.forms}
         missing = [word for word in self.config.filler_words if not known(word)]
         if missing:
@@ -325,10 +338,29 @@ class OfflineRecognizer:
                 same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= limits.end_regret]
                 limit = _limit(grammar.kind, limits.confirm_regret, limits)
                 if same and min(s.regret for s in same) <= limit:
-                    chosen = min(same, key=lambda s: s.regret)
-        if chosen is not None and self._longer_form_as_likely(chosen, forms, limits):
+                    verified = min(same, key=lambda s: s.regret)
+                    per_word = limits.confirm_written_regret_per_word
+                    if not self._far_from_written(verified, evidence.free_text, per_word):
+                        chosen = verified
+        if chosen is None:
+            return None
+        if chosen.regret > limits.accept_regret and self._written_in_part(chosen, evidence.free_text):
+            return None
+        if self._longer_form_as_likely(chosen, forms, limits):
             return None
         return chosen
+
+    def _far_from_written(self, score: FormScore, free_text: str, per_word: float) -> bool:
+        """Whether Moonshine wrote words of its own and the form is more than `per_word` regret per
+        word from them. An empty transcript is no evidence against the form: Moonshine often
+        writes nothing for espeak's commands."""
+        return _has_words(free_text) and score.regret > per_word * len(self.forms[score.index].words.split())
+
+    def _written_in_part(self, score: FormScore, free_text: str) -> bool:
+        """Whether Moonshine wrote some of the form's words and nothing else: "Left" for "reach
+        left", "Up." for "look up". A word said alone; the rest of the form was not heard."""
+        written = set(_words(free_text))
+        return bool(written) and written < set(self.forms[score.index].words.split())
 
     def _longer_form_as_likely(self, chosen: FormScore, forms: list[FormScore], limits: AcceptLimits) -> bool:
         """Whether Moonshine finds, nearly as likely as `chosen`, a form of another meaning holding
@@ -383,7 +415,7 @@ class OfflineRecognizer:
         # Moonshine wrote other words ("What's up?", where pocketsphinx's grammar, which must
         # name some form, heard "look up" at regret 8.6): a short form must then be near them
         # word for word. An empty transcript is no evidence against the form.
-        if _has_words(free_text) and score.regret > limits.written_regret_per_word * len(form.words.split()):
+        if self._far_from_written(score, free_text, limits.written_regret_per_word):
             return None
         if (
             (agrees and score.regret <= _limit(kind, limits.agree_regret, limits))

@@ -246,3 +246,21 @@ def written_forms(name_words: str, spoken_words: str) -> tuple[str, ...]:
     for ways in choices:
         forms = [f"{head} {way}".strip() for head in forms for way in ways]
     return tuple(dict.fromkeys(forms))
+
+
+# How a phrase said again is written: "Stop stop", "Stop, stop", "Stop. Stop. Stop.", "Stop! Stop!";
+# True where the next one starts a sentence.
+_REPEAT_SEPARATORS = ((" ", False), (", ", False), (". ", True), ("! ", True))
+
+
+def said_again(ways: tuple[str, ...], times: int = 3) -> tuple[str, ...]:
+    """The ways of writing a phrase, each also said up to `times` times over ("stop, stop!"): a
+    person who wants the robot to stop says it again, and a form that ended after the first "stop"
+    would pay the end regret for the rest and be turned away."""
+    repeated = []
+    for way in ways:
+        capital = way[:1].upper() + way[1:]
+        for separator, sentence in _REPEAT_SEPARATORS:
+            again = capital if sentence else way
+            repeated += [separator.join([way] + [again] * (count - 1)) for count in range(2, times + 1)]
+    return tuple(dict.fromkeys([*ways, *repeated]))

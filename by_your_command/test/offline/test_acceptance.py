@@ -31,6 +31,10 @@ def test_limits_are_checked() -> None:
         AcceptLimits(written_regret_per_word=-1.0)
     with pytest.raises(ValueError, match="finite"):
         AcceptLimits(written_regret_per_word=math.nan)
+    with pytest.raises(ValueError, match="negative"):
+        AcceptLimits(confirm_written_regret_per_word=-0.5)
+    with pytest.raises(ValueError, match="finite"):
+        AcceptLimits(confirm_written_regret_per_word=math.inf)
     with pytest.raises(ValueError, match="rescore_meanings"):
         Acceptance(rescore_meanings=0)
     with pytest.raises(ValueError, match="noisy_below_snr_db"):

@@ -52,6 +52,20 @@ def test_spoken_commands_phrases_and_questions_are_recognized(
 @pytest.mark.unit
 @pytest.mark.parametrize(
     ("text", "voice"),
+    [("stop, stop!", "en-us+m7"), ("stop stop stop", "en-gb-x-rp"), ("freeze freeze", "en-us+f3")],
+)
+def test_a_phrase_said_again_is_that_phrase(
+    recognizer: OfflineRecognizer, synthesize: Synthesize, text: str, voice: str
+) -> None:
+    """Someone who wants the robot to stop says it again; Moonshine writes "Stop, stop", and a
+    form that ended after the first "stop" paid for the rest (end regret) and was turned away."""
+    result = recognizer.recognize(synthesize(text, voice), RATE)
+    assert (result.kind, result.canonical) == (RecognitionKind.PHRASE, "stop"), result
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("text", "voice"),
     [
         ("I looked up the answer yesterday", "en-us+m7"),
         ("don't stop believing", "en-gb-x-rp"),
@@ -504,6 +518,44 @@ def test_noise_does_not_loosen_the_verified_path(recognizer: OfflineRecognizer) 
 
     assert verified(14.2) is None
     assert verified(11.0) is not None  # a command both pocketsphinx passes heard, Moonshine near it
+
+
+@pytest.mark.unit
+def test_the_verified_form_must_be_near_the_words_moonshine_wrote(recognizer: OfflineRecognizer) -> None:
+    """A person saying "up" (Speech Commands): Moonshine wrote "Up." and put "bumper" at regret
+    9.1, and both pocketsphinx passes, which know only the forms' words, heard "bumper"."""
+    bumper = _form(recognizer, "bumper")
+    acceptance = recognizer.config.acceptance
+
+    def verified(free_text: str, regret: float) -> FormScore | None:
+        evidence = Evidence(40.0, [FormScore(bumper, -12.0, regret)], free_text, "bumper", [])
+        return recognizer.decide(evidence, acceptance, lambda: "bumper")
+
+    assert verified("Up.", 9.1) is None
+    assert verified("", 9.1) is not None  # Moonshine wrote nothing: no evidence against it
+    assert verified("Mum put.", acceptance.clean.confirm_written_regret_per_word - 0.5) is not None
+
+
+@pytest.mark.unit
+def test_a_word_said_alone_is_not_a_form_that_holds_it(recognizer: OfflineRecognizer) -> None:
+    """People saying "left" or "up" alone: Moonshine wrote "Left" and "Up.", and pocketsphinx's
+    passes heard the forms holding the word. Beyond Moonshine's own word, a form of which Moonshine
+    wrote only some words (and nothing else) was not said."""
+    reach_left, look_up = _form(recognizer, "reach left"), _form(recognizer, "look up")
+    acceptance = recognizer.config.acceptance
+
+    def decided(index: int, free_text: str, regret: float) -> FormScore | None:
+        heard = recognizer.forms[index].words
+        evidence = Evidence(40.0, [FormScore(index, -8.0, regret)], free_text, heard, [])
+        return recognizer.decide(evidence, acceptance, lambda: heard)
+
+    agreeing = 2 * acceptance.clean.written_regret_per_word - 0.5  # the grammar agrees, near enough
+    assert decided(look_up, "Up.", agreeing) is None
+    assert decided(look_up, "Look. Up!", agreeing) is not None  # all of its words
+    assert decided(look_up, "Look at.", agreeing) is not None  # other words: near enough to them
+    assert decided(reach_left, "Left, left.", 8.0) is None  # verified, within 5 per word
+    assert decided(reach_left, "", 8.0) is not None
+    assert decided(look_up, "Up.", acceptance.clean.accept_regret) is not None  # Moonshine's own word
 
 
 @pytest.mark.unit

@@ -14,6 +14,7 @@ from by_your_command.offline.spoken import (
     SpokenVocabularyConfig,
     build_spoken_forms,
     pronounceable,
+    said_again,
     written_forms,
 )
 
@@ -126,3 +127,14 @@ def test_written_forms_spell_split_names_and_numbers_as_a_transcriber_would() ->
     )
     with pytest.raises(ValueError, match="pronounceable"):
         written_forms("tenhut", "ten hat")
+
+
+@pytest.mark.unit
+def test_a_phrase_said_again_is_written_as_a_transcriber_writes_it() -> None:
+    ways = said_again(("stop", "stop moving"))
+    assert ways[:2] == ("stop", "stop moving")
+    assert {"stop stop", "stop, stop", "stop. Stop. Stop", "stop! Stop", "stop moving, stop moving"} <= set(
+        ways
+    )
+    assert "stop, stop, stop, stop" not in ways and "stop stop moving" not in ways
+    assert said_again(("halt",), times=1) == ("halt",)
