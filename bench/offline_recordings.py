@@ -14,8 +14,8 @@ or chat line.
 
 Every clip is decoded by the shipped search and by the bare JSGF grammar (the baseline) in turn,
 so machine load falls on both alike. Figures as JSON lines (decode speed as the median real-time
-factor and its ratio to the baseline's), then one row per folder and the clips taken as another
-meaning.
+factor and its ratio to the baseline's), then one row per folder, the clips taken as another
+meaning, and a form's clips rejected (with what Moonshine and pocketsphinx heard).
 usage: scripts/run.sh python bench/offline_recordings.py DIR [--per-folder N] [--list 40]
 """
 
@@ -102,9 +102,7 @@ def main() -> None:
     parser.add_argument(
         "--per-folder", type=int, help="at most this many clips of each folder (default: all)"
     )
-    parser.add_argument(
-        "--list", type=int, default=40, help="clips taken as another meaning listed per search"
-    )
+    parser.add_argument("--list", type=int, default=40, help="clips listed per search and kind of mistake")
     parser.add_argument("--searches", nargs="+", type=Search, default=[Search.MOONSHINE])
     args = parser.parse_args()
     if not args.root.is_dir():
@@ -126,6 +124,7 @@ def main() -> None:
         for search in recognizers
     }
     wrong: dict[Search, list[str]] = collections.defaultdict(list)
+    missed: dict[Search, list[str]] = collections.defaultdict(list)  # a form's clips rejected
     unreadable, done, total = 0, 0, sum(len(paths) for paths in clips.values())
     for name, paths in clips.items():
         for path in paths:
@@ -148,6 +147,9 @@ def main() -> None:
                     and (result.kind, result.canonical) != folder.expected
                 ):
                     wrong[search].append(f"{name}/{path.name} -> {result.canonical} ({result.text!r})")
+                if folder.expected is not None and result.kind is RecognitionKind.REJECTED:
+                    heard = f" ({result.text})" if result.text else ""
+                    missed[search].append(f"{name}/{path.name}: {result.reason}{heard}")
     decoded = total - unreadable
     emit("clips", decoded, "clips", folders=len(clips), unreadable=unreadable)
     if not decoded:
@@ -184,10 +186,14 @@ def main() -> None:
             taken = ", ".join(f"{canonical} {n}" for canonical, n in folder.taken.most_common(4))
             print(f"{search.value:<14}{folder.name:<18}{expected:<16}{folder.clips:>6}{right:>7.1f}%"
                   f"{folder.as_command:>7}{folder.as_question:>5}  {taken}")  # fmt: skip
-    for search, lines in wrong.items():
-        print(f"\n{search.value}: {len(lines)} clips taken as another meaning" + (":" if lines else ""))
-        for line in lines[: args.list]:
-            print(f"  {line}")
+    for search in recognizers:
+        for what, lines in (
+            ("taken as another meaning", wrong[search]),
+            ("of a form rejected", missed[search]),
+        ):
+            print(f"\n{search.value}: {len(lines)} clips {what}" + (":" if lines else ""))
+            for line in lines[: args.list]:
+                print(f"  {line}")
 
 
 if __name__ == "__main__":
