@@ -36,6 +36,7 @@ import numpy.typing as npt
 import onnxruntime
 
 from by_your_command.offline.ort_format import onnx_model
+from by_your_command.offline.spoken import sentence_case
 from by_your_command.offline.tokenizer import END, START, Tokenizer
 
 log = logging.getLogger(__name__)
@@ -144,11 +145,6 @@ def _as_past(outputs: dict[str, FloatArray], part: str) -> dict[str, FloatArray]
     }
 
 
-def _as_written(text: str) -> str:
-    """How the model writes a spoken form: a capital first letter ("look up" -> "Look up")."""
-    return text[:1].upper() + text[1:]
-
-
 class MoonshineScorer:
     """Scores a fixed set of texts against utterances. Not thread-safe (the caller locks)."""
 
@@ -175,7 +171,7 @@ class MoonshineScorer:
         for index, text in enumerate(texts):
             for written in [text] if isinstance(text, str) else text:  # its ways of being written
                 node = self._root
-                for token in self.tokenizer.encode(_as_written(written)):
+                for token in self.tokenizer.encode(sentence_case(written)):  # as the model writes it
                     node = node.children.setdefault(token, _Node())
                 if index not in node.ends:
                     node.ends.append(index)

@@ -163,13 +163,10 @@ def _holds(longer: list[str], words: list[str]) -> bool:
     return len(longer) > len(words) and all(word in remaining for word in words)
 
 
-def _has_words(text: str) -> bool:
-    return any(character.isalnum() for character in text)
-
-
 def _words(text: str) -> list[str]:
-    """A transcript's words, lower case, without punctuation ("Left, left." -> left, left)."""
-    return re.findall(r"[a-z0-9']+", text.lower())
+    """A transcript's words, lower case, without punctuation ("Left, left." -> left, left; "..."
+    -> none)."""
+    return re.findall(r"[^\W_]+(?:'[^\W_]+)*", text.lower())
 
 
 def _rejected(reason: Rejection, text: str = "") -> Recognition:
@@ -354,7 +351,8 @@ class OfflineRecognizer:
         """Whether Moonshine wrote words of its own and the form is more than `per_word` regret per
         word from them. An empty transcript is no evidence against the form: Moonshine often
         writes nothing for espeak's commands."""
-        return _has_words(free_text) and score.regret > per_word * len(self.forms[score.index].words.split())
+        words = len(self.forms[score.index].words.split())
+        return bool(_words(free_text)) and score.regret > per_word * words
 
     def _written_in_part(self, score: FormScore, free_text: str) -> bool:
         """Whether Moonshine wrote some of the form's words and nothing else: "Left" for "reach

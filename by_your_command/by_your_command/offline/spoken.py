@@ -253,14 +253,19 @@ def written_forms(name_words: str, spoken_words: str) -> tuple[str, ...]:
 _REPEAT_SEPARATORS = ((" ", False), (", ", False), (". ", True), ("! ", True))
 
 
+def sentence_case(text: str) -> str:
+    """A capital first letter, the rest as it is ("look up" -> "Look up"): how a transcriber
+    starts a sentence."""
+    return text[:1].upper() + text[1:]
+
+
 def said_again(ways: tuple[str, ...], times: int = 3) -> tuple[str, ...]:
     """The ways of writing a phrase, each also said up to `times` times over ("stop, stop!"): a
     person who wants the robot to stop says it again, and a form that ended after the first "stop"
     would pay the end regret for the rest and be turned away."""
     repeated = []
     for way in ways:
-        capital = way[:1].upper() + way[1:]
         for separator, sentence in _REPEAT_SEPARATORS:
-            again = capital if sentence else way
+            again = sentence_case(way) if sentence else way
             repeated += [separator.join([way] + [again] * (count - 1)) for count in range(2, times + 1)]
     return tuple(dict.fromkeys([*ways, *repeated]))
