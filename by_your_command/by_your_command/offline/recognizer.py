@@ -32,7 +32,7 @@ import os
 import re
 import tempfile
 import threading
-from collections import Counter
+from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,6 +42,7 @@ import numpy as np
 from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
 from by_your_command.offline.acceptance import Acceptance, AcceptLimits
+from by_your_command.offline.asking import not_asked_for
 from by_your_command.offline.filler_words import FILLER_WORDS
 from by_your_command.offline.front_end import Cleaned, NoiseSuppression, fall_time_ms, suppress_noise
 from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
@@ -196,6 +197,15 @@ class OfflineRecognizer:
             for form, ways in zip(self.forms, written, strict=True)
         ]
         self._by_words = {form.words: form for form in self.forms}
+        polite_words = set(" ".join(self.config.spoken.polite_openings).split())
+        self._verbs = frozenset(  # every command's and phrase's first word after a polite opening
+            next((word for word in form.words.split() if word not in polite_words), form.words.split()[0])
+            for form in self.forms
+            if form.kind is not RecognitionKind.QUESTION
+        )
+        self._words_by_meaning: dict[tuple[RecognitionKind, str], set[str]] = defaultdict(set)
+        for form in self.forms:
+            self._words_by_meaning[(form.kind, form.canonical)].update(form.words.split())
         missing = [word for word in self.config.filler_words if not known(word)]
         if missing:
             raise ValueError(f"filler words not in the pronunciation dictionary: {missing}")
@@ -341,7 +351,11 @@ class OfflineRecognizer:
                         chosen = verified
         if chosen is None:
             return None
-        if chosen.regret > limits.accept_regret and self._written_in_part(chosen, evidence.free_text):
+        noisy = evidence.snr_db < acceptance.noisy_below_snr_db
+        if chosen.regret > limits.accept_regret and (
+            self._written_in_part(chosen, evidence.free_text)
+            or self._not_asked_for(chosen, evidence.free_text, noisy)
+        ):
             return None
         if self._longer_form_as_likely(chosen, forms, limits):
             return None
@@ -359,6 +373,16 @@ class OfflineRecognizer:
         left", "Up." for "look up". A word said alone; the rest of the form was not heard."""
         written = set(_words(free_text))
         return bool(written) and written < set(self.forms[score.index].words.split())
+
+    def _not_asked_for(self, score: FormScore, free_text: str, noisy: bool) -> bool:
+        """Whether Moonshine wrote a command's words in a sentence that does not ask for it: "I
+        turned left", "don't look up", "if you turn left" (asking.py). A question is answered, not
+        acted on: not judged so."""
+        form = self.forms[score.index]
+        if form.kind is RecognitionKind.QUESTION:
+            return False
+        same_meaning = self._words_by_meaning[self._meaning(score)]
+        return not_asked_for(_words(free_text), form.words.split(), self._verbs, same_meaning, noisy)
 
     def _longer_form_as_likely(self, chosen: FormScore, forms: list[FormScore], limits: AcceptLimits) -> bool:
         """Whether Moonshine finds, nearly as likely as `chosen`, a form of another meaning holding

@@ -45,7 +45,9 @@ def _default_phrases() -> dict[str, tuple[str, ...]]:
     return {
         "wake": tuple(DEFAULT_WAKE_PHRASES),
         "sleep": tuple(DEFAULT_SLEEP_PHRASES),
-        "stop": ("stop", "stop moving", "halt", "freeze"),
+        # Stopping is the harmless mistake, so stop takes what people say when they mean it.
+        "stop": ("stop", "stop moving", "halt", "freeze", "stop it", "stop now", "stop right now")
+        + ("stop right there", "please stop", "stop please"),
     }
 
 
@@ -57,9 +59,12 @@ class SpokenVocabularyConfig:
             "lookup": ("look up",),
             "lookout": ("look out",),
             "tenhut": ("attention",),
-            "forward": ("ahead",),
+            "forward": ("ahead", "forwards"),
+            "back": ("backward", "backwards"),
         }
     )
+    # Whole forms that no name and bearing make, canonical command -> forms.
+    extra_forms: dict[str, tuple[str, ...]] = field(default_factory=lambda: {"turn@back": ("turn around",)})
     # Canonical command -> phrases. These commands come back as PHRASE, so a sleeping robot can
     # listen for "wake" alone and "stop" can skip the queue.
     phrases: dict[str, tuple[str, ...]] = field(default_factory=_default_phrases)
@@ -150,6 +155,12 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
         kind = RecognitionKind.PHRASE if spec.name in config.phrases else RecognitionKind.COMMAND
         for words, canonical in _command_forms(spec, vocabulary, config):
             _check_canonical(grammar, canonical)
+            add(words, kind, canonical)
+    for canonical, spoken in config.extra_forms.items():
+        _check_canonical(grammar, canonical)
+        base = canonical.split("@")[0]
+        kind = RecognitionKind.PHRASE if base in config.phrases else RecognitionKind.COMMAND
+        for words in spoken:
             add(words, kind, canonical)
     if config.bare_bearings and "pan" in vocabulary.commands:
         for words, bearing in _direction_words(vocabulary, config):

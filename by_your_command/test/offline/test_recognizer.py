@@ -34,6 +34,11 @@ Synthesize = Callable[[str, str], bytes]
         ("what time is it", "en-us+m7", RecognitionKind.QUESTION, "time"),
         ("please look up", "en-us+f3", RecognitionKind.COMMAND, "lookup"),
         ("can you pan to the left please", "en-gb-x-rp", RecognitionKind.COMMAND, "pan@left"),
+        ("move backward", "en-us+m7", RecognitionKind.COMMAND, "move@back"),
+        ("turn around", "en-gb-x-rp", RecognitionKind.COMMAND, "turn@back"),
+        ("please stop", "en-us+f3", RecognitionKind.PHRASE, "stop"),
+        ("stop it", "en-029", RecognitionKind.PHRASE, "stop"),
+        ("stop right there", "en-us+m7", RecognitionKind.PHRASE, "stop"),
     ],
 )
 def test_spoken_commands_phrases_and_questions_are_recognized(
@@ -75,6 +80,13 @@ def test_a_phrase_said_again_is_that_phrase(
         ("can you look up a recipe", "en-us+f3"),  # a polite command that goes on
         ("open the door please", "en-gb-x-rp"),
         ("what's up", "en-us+f3"),  # Moonshine: "What's up?"; pocketsphinx's grammar: "look up"
+        # The form's words in a sentence that does not ask for it (asking.py).
+        ("I followed the ball", "en-gb-x-rp"),
+        ("I reached forward", "en-029"),
+        ("they moved left", "en-gb-x-rp"),
+        ("I'm moving forward", "en-us+f3"),
+        ("I looked up", "en-us+m7"),
+        ("if you turn left", "en-us+m7"),  # verified as "could you turn left" before
     ],
 )
 def test_chat_is_rejected_not_forced_into_a_command(
@@ -424,7 +436,9 @@ def test_the_verified_form_is_taken_only_if_it_ends_where_the_speech_ends(
 
     def decided(end_regret: float) -> RecognitionKind:
         analysis = Analysis(
-            [FormScore(sleep, -6.0, 5.0, end_regret)], Transcript("He reached the top.", -3.0, True)
+            # Without its subject: "He" alone now turns it away (asking.py).
+            [FormScore(sleep, -6.0, 5.0, end_regret)],
+            Transcript("Reached the top.", -3.0, True),
         )
         monkeypatch.setattr(scorer, "analyse", lambda audio: analysis)
         return recognizer.recognize(speech, RATE).kind
@@ -556,6 +570,29 @@ def test_a_word_said_alone_is_not_a_form_that_holds_it(recognizer: OfflineRecogn
     assert decided(reach_left, "Left, left.", 8.0) is None  # verified, within 5 per word
     assert decided(reach_left, "", 8.0) is not None
     assert decided(look_up, "Up.", acceptance.clean.accept_regret) is not None  # Moonshine's own word
+
+
+@pytest.mark.unit
+def test_a_form_is_not_taken_when_moonshine_wrote_it_told_of_forbidden_or_as_a_condition(
+    recognizer: OfflineRecognizer,
+) -> None:
+    """ "I followed the ball": Moonshine wrote it word for word, found "follow the ball" at regret
+    5-7, and pocketsphinx's grammar heard the form; every voice's was taken before."""
+    follow_ball = _form(recognizer, "follow the ball")
+    acceptance = recognizer.config.acceptance
+
+    def decided(free_text: str, regret: float) -> FormScore | None:
+        heard = recognizer.forms[follow_ball].words
+        evidence = Evidence(40.0, [FormScore(follow_ball, -8.0, regret)], free_text, heard, [])
+        return recognizer.decide(evidence, acceptance, lambda: heard)
+
+    assert decided("I followed the ball.", 6.0) is None
+    assert decided("She follows the ball.", 6.0) is None
+    assert decided("Don't follow the ball.", 6.0) is None
+    assert decided("If you follow the ball,", 6.0) is None
+    assert decided("Follow the bowl.", 6.0) is not None  # misheard, but told of nothing
+    assert decided("", 6.0) is not None
+    assert decided("I followed the ball.", acceptance.clean.accept_regret) is not None  # its own words
 
 
 @pytest.mark.unit

@@ -58,7 +58,33 @@ def test_natural_spoken_forms_map_to_canonical_commands() -> None:
     assert meaning["go to sleep"] == (RecognitionKind.PHRASE, "sleep")
     assert meaning["wake up"] == (RecognitionKind.PHRASE, "wake")
     assert meaning["stop"] == (RecognitionKind.PHRASE, "stop")
+    for words in ("stop it", "please stop", "stop please", "stop right there"):
+        assert meaning[words] == (RecognitionKind.PHRASE, "stop"), words
     assert meaning["what time is it"] == (RecognitionKind.QUESTION, "time")
+
+
+@pytest.mark.unit
+def test_backward_forwards_and_turn_around_are_said_as_people_say_them() -> None:
+    meaning = {form.words: form for form in FORMS}
+    assert meaning["move backward"].canonical == "move@back"
+    assert meaning["reach backwards"].canonical == "reach@back"
+    assert meaning["turn forwards"].canonical == "turn@forward"
+    assert meaning["turn around"].canonical == "turn@back"
+    assert meaning["turn around"].kind is RecognitionKind.COMMAND
+    assert meaning["please turn around"].polite
+    # Only the bearing "back" takes them: "backward left" is no form.
+    assert "move backward left" not in meaning
+    plain = build_spoken_forms(VOCABULARY, SpokenVocabularyConfig(aliases={}, extra_forms={}))
+    assert not {"move backward", "turn around", "move ahead"} & {form.words for form in plain}
+
+
+@pytest.mark.unit
+def test_an_extra_form_must_be_a_command_in_normal_form() -> None:
+    with pytest.raises(ValueError, match="normal form"):
+        build_spoken_forms(VOCABULARY, SpokenVocabularyConfig(extra_forms={"turn@around": ("turn around",)}))
+    clash = SpokenVocabularyConfig(extra_forms={"turn@left": ("turn right",)})
+    with pytest.raises(ValueError, match="means both"):
+        build_spoken_forms(VOCABULARY, clash)
 
 
 @pytest.mark.unit
@@ -69,8 +95,9 @@ def test_commands_can_be_asked_for_politely_phrases_and_questions_cannot() -> No
         assert meaning[words].kind is RecognitionKind.COMMAND and meaning[words].polite, words
     assert meaning["can you pan left"].canonical == "pan@left"
     assert not meaning["pan left"].polite
-    for words in ("please stop", "can you wake up", "go to sleep please", "please what time is it"):
+    for words in ("can you wake up", "go to sleep please", "please what time is it"):
         assert words not in meaning
+    assert not meaning["please stop"].polite  # a stop phrase of its own, not a wrapped command
     assert "please look up please" not in meaning
     plain = [form for form in FORMS if form.kind is RecognitionKind.COMMAND and not form.polite]
     assert sum(form.polite for form in FORMS) == 6 * len(plain)  # 3 openings x (none or "please") + "please"
