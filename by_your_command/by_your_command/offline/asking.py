@@ -21,6 +21,7 @@ is no evidence either: "reach to the left" is "reached on the left" to it.
 from __future__ import annotations
 
 from collections.abc import Collection, Sequence
+from dataclasses import dataclass, field
 
 # "it" is an object as often as a subject ("stop it", "look it up").
 SUBJECTS = frozenset(
@@ -55,27 +56,37 @@ def inflections(word: str) -> set[str]:
     return endings
 
 
+@dataclass(frozen=True)
+class Verbs:
+    """The vocabulary's verbs (its forms' first words), bare and with every ending."""
+
+    bare: frozenset[str]
+    inflected: frozenset[str] = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "inflected", frozenset(e for verb in self.bare for e in inflections(verb)))
+
+
 def not_asked_for(
     written: Sequence[str],
     form: Sequence[str],
-    verbs: Collection[str],
+    verbs: Verbs,
     same_meaning: Collection[str],
     noisy: bool = False,
 ) -> bool:
     """Whether the transcript's words (lower case) do not ask for the form (its words in order):
     a negation or condition the form does not hold; one of the form's verbs with an ending
     ("turned", "moving") that no form of the same meaning says ("moving": "stop moving"); or
-    a subject the form does not hold right before one of the vocabulary's `verbs` (the forms'
-    first words), bare or with an ending ("I look up", "she woke up"; in noise "we" and "you"
+    a subject the form does not hold right before one of the vocabulary's `verbs`, bare or with
+    an ending ("I look up", "she woke up"; in noise "we" and "you"
     only before an ending)."""
     endings: set[str] = set()
     for place, word in enumerate(form):
-        if word not in verbs:  # "pleased", "balls": no one tells of an action by them
+        if word not in verbs.bare:  # "pleased", "balls": no one tells of an action by them
             continue
         merged = place + 1 < len(form) and form[place + 1][:1] in "td"  # "reach to" sounds "reached"
         endings |= {ending for ending in inflections(word) if not (merged and ending.endswith("d"))}
     endings -= set(same_meaning)
-    inflected = {ending for verb in verbs for ending in inflections(verb)}
     for place, word in enumerate(written):
         if word in form:
             continue
@@ -83,7 +94,8 @@ def not_asked_for(
             return True
         following = written[place + 1] if place + 1 < len(written) else ""
         if word in SUBJECTS and (
-            following in inflected or (following in verbs and not (noisy and word in NOISE_SUBJECTS))
+            following in verbs.inflected
+            or (following in verbs.bare and not (noisy and word in NOISE_SUBJECTS))
         ):
             return True
     return False

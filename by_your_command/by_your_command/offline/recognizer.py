@@ -42,7 +42,7 @@ import numpy as np
 from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
 from by_your_command.offline.acceptance import Acceptance, AcceptLimits
-from by_your_command.offline.asking import not_asked_for
+from by_your_command.offline.asking import Verbs, not_asked_for
 from by_your_command.offline.filler_words import FILLER_WORDS
 from by_your_command.offline.front_end import Cleaned, NoiseSuppression, fall_time_ms, suppress_noise
 from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
@@ -196,12 +196,17 @@ class OfflineRecognizer:
             said_again(ways) if form.kind is RecognitionKind.PHRASE else ways
             for form, ways in zip(self.forms, written, strict=True)
         ]
-        self._by_words = {form.words: form for form in self.forms}
+        # pocketsphinx's passes know the plain forms only (_load_searches).
+        self._pocketsphinx_forms = {
+            form.words: form for form in self.forms if not (form.polite or form.extra)
+        }
         polite_words = set(" ".join(self.config.spoken.polite_openings).split())
-        self._verbs = frozenset(  # every command's and phrase's first word after a polite opening
-            next((word for word in form.words.split() if word not in polite_words), form.words.split()[0])
-            for form in self.forms
-            if form.kind is not RecognitionKind.QUESTION
+        self._verbs = Verbs(  # every command's and phrase's first word after a polite opening
+            frozenset(
+                next((word for word in form.words.split() if word not in polite_words), form.words.split()[0])
+                for form in self.forms
+                if form.kind is not RecognitionKind.QUESTION
+            )
         )
         self._words_by_meaning: dict[tuple[RecognitionKind, str], set[str]] = defaultdict(set)
         for form in self.forms:
@@ -231,8 +236,9 @@ class OfflineRecognizer:
     def _load_searches(self) -> None:
         # pocketsphinx's passes know the plain forms only: optional polite words in its grammar
         # made the search three times slower and it heard them in the noise before "turn left".
-        # Moonshine scores the polite forms; the pocketsphinx evidence is about the meaning.
-        words = [form.words for form in self.forms if not form.polite]
+        # An extra form is no name and bearing, and its words may sound like anything: both passes
+        # heard "turn around" in people's single "down" and "nine". Moonshine scores those forms.
+        words = list(self._pocketsphinx_forms)
         if self.search is not Search.FILLER_LM:
             self._decoder.add_jsgf_string(GRAMMAR_SEARCH, jsgf_grammar(words))
         if self.search is Search.BARE_GRAMMAR:
@@ -274,14 +280,14 @@ class OfflineRecognizer:
         audio = self._prepared(samples)
         first = FILLER_SEARCH if self.search is Search.FILLER_LM else GRAMMAR_SEARCH
         hypothesis, confidence = self._decode(audio, first)
-        form = self._by_words.get(hypothesis)
+        form = self._pocketsphinx_forms.get(hypothesis)
         if form is None:
             return _rejected(Rejection.NOT_IN_GRAMMAR, hypothesis)
         if self.search is Search.VERIFIED:
             # The grammar always finds its nearest form; only when the filler model, free to
             # hear any words, hears the same meaning is it a command.
             check, confidence = self._decode(audio, FILLER_SEARCH)
-            confirmed = self._by_words.get(check)
+            confirmed = self._pocketsphinx_forms.get(check)
             if confirmed is None or confirmed.canonical != form.canonical:
                 return _rejected(Rejection.UNCONFIRMED, f"{hypothesis} / {check}")
         return Recognition(form.kind, form.words, form.canonical, confidence)
@@ -315,7 +321,7 @@ class OfflineRecognizer:
             return Evidence(cleaned.snr_db, [], analysis.free.text, "", [], fall_ms)
         audio = self._prepared(samples)
         grammar, _ = self._decode(audio, GRAMMAR_SEARCH)
-        candidates = self._candidates(audio, analysis.forms, self._by_words.get(grammar))
+        candidates = self._candidates(audio, analysis.forms, self._pocketsphinx_forms.get(grammar))
         return Evidence(cleaned.snr_db, analysis.forms, analysis.free.text, grammar, candidates, fall_ms)
 
     def filler_heard(self, samples: Int16Array) -> str:
@@ -331,7 +337,7 @@ class OfflineRecognizer:
         if not forms:
             return None
         limits = acceptance.limits(evidence.snr_db, evidence.fall_ms)
-        grammar = self._by_words.get(evidence.grammar_text)
+        grammar = self._pocketsphinx_forms.get(evidence.grammar_text)
         # Even a form Moonshine is sure of gives way to another meaning the reranking puts first
         # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
         reranked = rescore(evidence.candidates, acceptance.rerank)
@@ -339,7 +345,7 @@ class OfflineRecognizer:
         if chosen is None and forms[0].regret <= limits.accept_regret:
             chosen = forms[0]
         if chosen is None and grammar is not None:
-            confirmed = self._by_words.get(filler_heard())
+            confirmed = self._pocketsphinx_forms.get(filler_heard())
             if confirmed is not None and confirmed.canonical == grammar.canonical:
                 meaning = (grammar.kind, grammar.canonical)
                 same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= limits.end_regret]
@@ -423,9 +429,10 @@ class OfflineRecognizer:
         if score.end_regret > limits.end_regret:  # the model heard more words after it
             return None
         form = self.forms[score.index]
-        if form.polite:
-            # On Moonshine's word alone: pocketsphinx does not know the polite words, and in noise
-            # Moonshine makes "please" of any "pl..." ("play some music" as "please follow me").
+        if form.words not in self._pocketsphinx_forms:
+            # On Moonshine's word alone: pocketsphinx does not know the polite words or the extra
+            # forms, and in noise Moonshine makes "please" of any "pl..." ("play some music" as
+            # "please follow me").
             return score if score.regret <= limits.near_regret else None
         kind = form.kind
         agrees = grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score)

@@ -39,6 +39,7 @@ class SpokenForm:
     kind: RecognitionKind
     canonical: str
     polite: bool = False  # a command form wrapped in a polite opening or closing ("please ...")
+    extra: bool = False  # from SpokenVocabularyConfig.extra_forms, or a polite form of one
 
 
 def _default_phrases() -> dict[str, tuple[str, ...]]:
@@ -140,28 +141,29 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
     grammar = CommandGrammar(vocabulary)
     forms: dict[str, SpokenForm] = {}
 
-    def add(words: str, kind: RecognitionKind, canonical: str, polite: bool = False) -> None:
+    def add(
+        words: str, kind: RecognitionKind, canonical: str, polite: bool = False, extra: bool = False
+    ) -> None:
         words = " ".join(words.lower().split())
         known = forms.get(words)
         if known is not None and known.canonical != canonical:
             raise ValueError(f"spoken form {words!r} means both {known.canonical!r} and {canonical!r}")
-        forms.setdefault(words, SpokenForm(words, kind, canonical, polite))
+        forms.setdefault(words, SpokenForm(words, kind, canonical, polite, extra))
 
     for canonical, spoken in config.phrases.items():
         _check_canonical(grammar, canonical)
         for words in spoken:
             add(words, RecognitionKind.PHRASE, canonical)
     for spec in vocabulary.commands.values():
-        kind = RecognitionKind.PHRASE if spec.name in config.phrases else RecognitionKind.COMMAND
+        kind = _kind(spec.name, config)
         for words, canonical in _command_forms(spec, vocabulary, config):
             _check_canonical(grammar, canonical)
             add(words, kind, canonical)
     for canonical, spoken in config.extra_forms.items():
         _check_canonical(grammar, canonical)
-        base = canonical.split("@")[0]
-        kind = RecognitionKind.PHRASE if base in config.phrases else RecognitionKind.COMMAND
+        kind = _kind(canonical.split("@")[0], config)
         for words in spoken:
-            add(words, kind, canonical)
+            add(words, kind, canonical, extra=True)
     if config.bare_bearings and "pan" in vocabulary.commands:
         for words, bearing in _direction_words(vocabulary, config):
             _check_canonical(grammar, f"pan@{bearing}")
@@ -172,8 +174,13 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
     commands = [form for form in forms.values() if form.kind is RecognitionKind.COMMAND]
     for opening, closing in _politeness(config):
         for form in commands:
-            add(f"{opening} {form.words} {closing}", form.kind, form.canonical, polite=True)
+            add(f"{opening} {form.words} {closing}", form.kind, form.canonical, polite=True, extra=form.extra)
     return list(forms.values())
+
+
+def _kind(command: str, config: SpokenVocabularyConfig) -> RecognitionKind:
+    """PHRASE for the commands said as wake/sleep/stop phrases, COMMAND for the others."""
+    return RecognitionKind.PHRASE if command in config.phrases else RecognitionKind.COMMAND
 
 
 def _politeness(config: SpokenVocabularyConfig) -> list[tuple[str, str]]:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from by_your_command.offline.asking import inflections, not_asked_for
+from by_your_command.offline.asking import Verbs, inflections, not_asked_for
 
-VERBS = {"move", "turn", "look", "follow", "stop", "wake", "pan", "reach"}
+VERBS = Verbs(frozenset(("move", "turn", "look", "follow", "stop", "wake", "pan", "reach")))
 
 
 def _not_asked(written: str, form: str, same_meaning: str = "", noisy: bool = False) -> bool:

@@ -362,6 +362,25 @@ def test_a_polite_form_is_taken_on_moonshines_word_alone(recognizer: OfflineReco
 
 
 @pytest.mark.unit
+def test_an_extra_form_is_taken_on_moonshines_word_alone(recognizer: OfflineRecognizer) -> None:
+    """People saying "down" or "nine" alone (Speech Commands): Moonshine put "turn around" first at
+    regret 7.5-10.7, and pocketsphinx's passes, had they known the form, heard it too. The extra
+    forms are not in pocketsphinx's grammar, and no other path takes them."""
+    turn_around = _form(recognizer, "turn around")
+    assert recognizer.forms[turn_around].extra and "turn around" not in recognizer._pocketsphinx_forms
+    acceptance = recognizer.config.acceptance
+    limits = acceptance.noisy
+    choose = _chooser(recognizer, limits)
+    strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.evidence_score + 3.0}
+    assert choose([_rescored(FormScore(turn_around, -10.0, 9.15), **strong)], None) is None
+    assert choose([_rescored(FormScore(turn_around, -3.0, limits.near_regret - 0.5))], None) is not None
+    heard = Evidence(
+        acceptance.noisy_below_snr_db - 5.0, [FormScore(turn_around, -10.0, 9.15)], "", "turn around", []
+    )
+    assert recognizer.decide(heard, acceptance, lambda: "turn around") is None  # not verified either
+
+
+@pytest.mark.unit
 def test_a_phrase_needs_stronger_evidence_than_a_command(recognizer: OfflineRecognizer) -> None:
     """Chat holding a phrase word ("I'm freezing", "what's up") is a word away from the phrase."""
     freeze, look_up = _form(recognizer, "freeze"), _form(recognizer, "look up")

@@ -71,7 +71,8 @@ def test_backward_forwards_and_turn_around_are_said_as_people_say_them() -> None
     assert meaning["turn forwards"].canonical == "turn@forward"
     assert meaning["turn around"].canonical == "turn@back"
     assert meaning["turn around"].kind is RecognitionKind.COMMAND
-    assert meaning["please turn around"].polite
+    assert meaning["turn around"].extra and not meaning["turn back"].extra
+    assert meaning["please turn around"].polite and meaning["please turn around"].extra
     # Only the bearing "back" takes them: "backward left" is no form.
     assert "move backward left" not in meaning
     plain = build_spoken_forms(VOCABULARY, SpokenVocabularyConfig(aliases={}, extra_forms={}))
