@@ -78,8 +78,7 @@ def not_asked_for(
     a negation or condition the form does not hold; one of the form's verbs with an ending
     ("turned", "moving") that no form of the same meaning says ("moving": "stop moving"); or
     a subject the form does not hold right before one of the vocabulary's `verbs`, bare or with
-    an ending ("I look up", "she woke up"; in noise "we" and "you"
-    only before an ending)."""
+    an ending ("I look up", "she woke up"; in noise "we" and "you" only before an ending)."""
     endings: set[str] = set()
     for place, word in enumerate(form):
         if word not in verbs.bare:  # "pleased", "balls": no one tells of an action by them
