@@ -19,7 +19,7 @@ import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from by_your_command.commands.grammar import CommandGrammar
+from by_your_command.commands.grammar import Command, CommandGrammar
 from by_your_command.commands.vocabulary import CommandSpec, ModifierKind, ModifierUse, Vocabulary
 from by_your_command.vad.config import DEFAULT_SLEEP_PHRASES, DEFAULT_WAKE_PHRASES
 
@@ -160,8 +160,7 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
             _check_canonical(grammar, canonical)
             add(words, kind, canonical)
     for canonical, spoken in config.extra_forms.items():
-        _check_canonical(grammar, canonical)
-        kind = _kind(canonical.split("@")[0], config)
+        kind = _kind(_check_canonical(grammar, canonical).base, config)
         for words in spoken:
             add(words, kind, canonical, extra=True)
     if config.bare_bearings and "pan" in vocabulary.commands:
@@ -190,10 +189,12 @@ def _politeness(config: SpokenVocabularyConfig) -> list[tuple[str, str]]:
     return [(o, c) for o in openings for c in closings if (o or c) and o != c]
 
 
-def _check_canonical(grammar: CommandGrammar, canonical: str) -> None:
+def _check_canonical(grammar: CommandGrammar, canonical: str) -> Command:
+    """The command `canonical` is; raises ValueError unless it is one in normal form."""
     parsed = grammar.parse_one(canonical)
     if parsed.command is None or parsed.command.text != canonical:
         raise ValueError(f"{canonical!r} is not a command in normal form: {parsed.reason or parsed.command}")
+    return parsed.command
 
 
 def pronounceable(forms: list[SpokenForm], in_dictionary: Callable[[str], bool]) -> list[SpokenForm]:
