@@ -24,8 +24,11 @@ Wake/sleep/stop phrases are one or two words, so chat holding one ("I'm freezing
 "sleep well") is a word or two away from them: a phrase is taken on Moonshine's word alone only up
 to accept_regret (nearly what it wrote freely), with pocketsphinx agreeing only up to
 phrase_regret, and never on the alignment or the reranking score alone. A polite form ("please
-follow me") is taken on Moonshine's word alone, up to near_regret: pocketsphinx does not know the
-polite words, and in noise Moonshine makes "please" of any "pl..." ("play some music").
+follow me") is taken on Moonshine's word up to near_regret: pocketsphinx does not know the
+polite words, and in noise Moonshine makes "please" of any "pl..." ("play some music"). Beyond
+that only up to polite_agree_regret, when pocketsphinx's grammar heard its command and Moonshine
+wrote a polite word ("please", "can", "could"; in noise the closing "please" is often "clean"),
+and within written_regret_per_word per word of the command it wraps.
 Whatever the path, beyond accept_regret a form is not taken when Moonshine wrote some of its words
 and nothing else ("Left" for "reach left", "Up." for "look up": a word said alone, the rest of the
 form unheard), nor when Moonshine finds a longer form of another meaning that holds all its words,
@@ -65,6 +68,9 @@ class AcceptLimits:
     evidence_score: float = -4.5  # a reranking score (rescoring.py) this high is evidence enough
     confirm_regret: float = 12.0
     phrase_regret: float = 6.0
+    # A polite form beyond near_regret: taken up to this when pocketsphinx's grammar heard its
+    # command and Moonshine wrote a polite word ("Can you look out to the light?").
+    polite_agree_regret: float = 9.0
     # Beyond near_regret, when Moonshine freely wrote words of its own: at most this regret per
     # word of the form (a short form is then a word away from what was said).
     written_regret_per_word: float = 3.5
@@ -82,6 +88,7 @@ class AcceptLimits:
             self.aligned_regret,
             self.confirm_regret,
             self.phrase_regret,
+            self.polite_agree_regret,
         )
         values = (
             self.accept_regret,
@@ -98,7 +105,7 @@ class AcceptLimits:
             raise ValueError("the regret limits and margins must be finite")
         if not 0.0 <= self.accept_regret <= min(limits):
             raise ValueError(
-                "need 0 <= accept_regret <= the near, agree, aligned, confirm and phrase regrets"
+                "need 0 <= accept_regret <= the near, agree, aligned, confirm, phrase and polite regrets"
             )
         written = (self.written_regret_per_word, self.confirm_written_regret_per_word)
         if min(self.end_regret, self.margin, *written, self.longer_form_regret) < 0:

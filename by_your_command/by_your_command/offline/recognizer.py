@@ -200,10 +200,16 @@ class OfflineRecognizer:
         self._pocketsphinx_forms = {
             form.words: form for form in self.forms if not (form.polite or form.extra)
         }
-        polite_words = set(" ".join(self.config.spoken.polite_openings).split())
+        spoken = self.config.spoken
+        openings = set(" ".join(spoken.polite_openings).split())
+        # What Moonshine writes of a polite opening or closing: "Can you" also for "could you".
+        self._politeness_cues = frozenset(
+            [opening.split()[0] for opening in spoken.polite_openings if opening.split()]
+            + " ".join(spoken.polite_closings).split()
+        )
         self._verbs = Verbs(  # every command's and phrase's first word after a polite opening
             frozenset(
-                next((word for word in form.words.split() if word not in polite_words), form.words.split()[0])
+                next((word for word in form.words.split() if word not in openings), form.words.split()[0])
                 for form in self.forms
                 if form.kind is not RecognitionKind.QUESTION
             )
@@ -374,6 +380,17 @@ class OfflineRecognizer:
         words = len(self.forms[score.index].words.split())
         return bool(_words(free_text)) and score.regret > per_word * words
 
+    def _written_politely(self, score: FormScore, free_text: str, limits: AcceptLimits) -> bool:
+        """Whether Moonshine wrote a polite word and the polite form is within
+        written_regret_per_word per word of the command it wraps (the polite words, written as
+        said, cost no regret and earn no allowance)."""
+        written = set(_words(free_text))
+        form = self.forms[score.index]
+        command_words = len(form.words.split()) - form.polite_words
+        return bool(written & self._politeness_cues) and score.regret <= (
+            limits.written_regret_per_word * command_words
+        )
+
     def _written_in_part(self, score: FormScore, free_text: str) -> bool:
         """Whether Moonshine wrote some of the form's words and nothing else: "Left" for "reach
         left", "Up." for "look up". A word said alone; the rest of the form was not heard."""
@@ -429,13 +446,22 @@ class OfflineRecognizer:
         if score.end_regret > limits.end_regret:  # the model heard more words after it
             return None
         form = self.forms[score.index]
-        if form.words not in self._pocketsphinx_forms:
-            # On Moonshine's word alone: pocketsphinx does not know the polite words or the extra
-            # forms, and in noise Moonshine makes "please" of any "pl..." ("play some music" as
-            # "please follow me").
-            return score if score.regret <= limits.near_regret else None
-        kind = form.kind
         agrees = grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score)
+        if form.words not in self._pocketsphinx_forms:
+            # pocketsphinx does not know the polite words or the extra forms: on Moonshine's word,
+            # which in noise makes "please" of any "pl..." ("play some music" as "please follow
+            # me"), unless pocketsphinx's grammar heard the command a polite form wraps.
+            if score.regret <= limits.near_regret:
+                return score
+            politely_asked = form.polite and not form.extra and agrees
+            if (
+                politely_asked
+                and score.regret <= limits.polite_agree_regret
+                and self._written_politely(score, free_text, limits)
+            ):
+                return score
+            return None
+        kind = form.kind
         # A phrase on Moonshine's word alone only if it is nearly what Moonshine wrote: in noise
         # "what's up" is "wake up" at regret 1.1.
         near = limits.accept_regret if kind is RecognitionKind.PHRASE else limits.near_regret

@@ -38,8 +38,14 @@ class SpokenForm:
     words: str  # lower-case dictionary words separated by single spaces
     kind: RecognitionKind
     canonical: str
-    polite: bool = False  # a command form wrapped in a polite opening or closing ("please ...")
+    # A command form wrapped in a polite opening or closing: how many words they add ("can you
+    # look up please": 3); 0 for a plain form.
+    polite_words: int = 0
     extra: bool = False  # from SpokenVocabularyConfig.extra_forms, or a polite form of one
+
+    @property
+    def polite(self) -> bool:
+        return self.polite_words > 0
 
 
 def _default_phrases() -> dict[str, tuple[str, ...]]:
@@ -142,13 +148,13 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
     forms: dict[str, SpokenForm] = {}
 
     def add(
-        words: str, kind: RecognitionKind, canonical: str, polite: bool = False, extra: bool = False
+        words: str, kind: RecognitionKind, canonical: str, polite_words: int = 0, extra: bool = False
     ) -> None:
         words = " ".join(words.lower().split())
         known = forms.get(words)
         if known is not None and known.canonical != canonical:
             raise ValueError(f"spoken form {words!r} means both {known.canonical!r} and {canonical!r}")
-        forms.setdefault(words, SpokenForm(words, kind, canonical, polite, extra))
+        forms.setdefault(words, SpokenForm(words, kind, canonical, polite_words, extra))
 
     for canonical, spoken in config.phrases.items():
         _check_canonical(grammar, canonical)
@@ -173,7 +179,8 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
     commands = [form for form in forms.values() if form.kind is RecognitionKind.COMMAND]
     for opening, closing in _politeness(config):
         for form in commands:
-            add(f"{opening} {form.words} {closing}", form.kind, form.canonical, polite=True, extra=form.extra)
+            polite_words = len(f"{opening} {closing}".split())
+            add(f"{opening} {form.words} {closing}", form.kind, form.canonical, polite_words, form.extra)
     return list(forms.values())
 
 

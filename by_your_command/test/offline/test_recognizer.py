@@ -346,19 +346,53 @@ def test_a_reranking_score_that_weighs_enough_evidence_is_taken_on_its_own(
 
 
 @pytest.mark.unit
-def test_a_polite_form_is_taken_on_moonshines_word_alone(recognizer: OfflineRecognizer) -> None:
+def test_a_polite_form_needs_moonshines_word_or_its_politeness_and_the_grammar(
+    recognizer: OfflineRecognizer,
+) -> None:
     """In noise Moonshine makes "please" of any "pl..." ("play some music" as "please follow me"),
-    and pocketsphinx does not know the polite words: no other path takes a polite form."""
+    and pocketsphinx does not know the polite words: beyond near_regret a polite form is taken
+    only when pocketsphinx's grammar heard the command it wraps and Moonshine wrote a polite word,
+    within the written limit per word of the command (not of the polite words it wrote too)."""
     plain, polite = _form(recognizer, "follow me"), _form(recognizer, "please follow me")
-    limits = recognizer.config.acceptance.clean
+    limits = recognizer.config.acceptance.noisy
     choose = _chooser(recognizer, limits)
     near = limits.near_regret - 0.5
     assert choose([_rescored(FormScore(polite, -3.0, near))], None) is not None
     strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.evidence_score + 3.0}
-    for regret in (limits.aligned_regret - 0.5, limits.agree_regret - 0.5):
-        heard = recognizer.forms[plain]
+    heard = recognizer.forms[plain]
+    for regret in (limits.aligned_regret - 0.5, limits.polite_agree_regret - 0.5):
         assert choose([_rescored(FormScore(plain, -9.0, regret), **strong)], heard) is not None
-        assert choose([_rescored(FormScore(polite, -9.0, regret), **strong)], heard) is None
+        assert choose([_rescored(FormScore(polite, -9.0, regret), **strong)], heard) is None  # wrote nothing
+    within = FormScore(polite, -9.0, limits.polite_agree_regret - 0.5)
+    assert choose([_rescored(within)], heard, free_text="Please follow the meat.") is within
+    assert choose([_rescored(within)], heard, free_text="Lay some music.") is None  # no polite word
+    assert choose([_rescored(within)], None, free_text="Please follow the meat.") is None  # grammar did not
+    beyond = FormScore(polite, -9.0, limits.polite_agree_regret + 0.5)
+    assert choose([_rescored(beyond)], heard, free_text="Please follow the meat.") is None
+    # "follow me" is two words: taken up to written_regret_per_word x 2 from what Moonshine wrote.
+    clean = recognizer.config.acceptance.clean
+    choose_clean = _chooser(recognizer, clean)
+    near_written = FormScore(polite, -9.0, 2 * clean.written_regret_per_word - 0.5)
+    far = FormScore(polite, -9.0, 2 * clean.written_regret_per_word + 0.5)
+    assert clean.near_regret < near_written.regret and far.regret <= clean.polite_agree_regret
+    assert choose_clean([_rescored(near_written)], heard, free_text="Please follow the meat.") is near_written
+    assert choose_clean([_rescored(far)], heard, free_text="Please follow the meat.") is None
+
+
+@pytest.mark.unit
+def test_a_polite_command_in_noise_is_taken_when_pocketsphinx_heard_the_command(
+    recognizer: OfflineRecognizer, synthesize: Synthesize
+) -> None:
+    """In noise Moonshine is rarely sure of a polite form word for word: here it wrote "Can you
+    look out to the light?" and put "can you look out to the right" at regret 5.6, beyond the noisy
+    near_regret; pocketsphinx's grammar heard "lookout to the right"."""
+    speech = synthesize("can you look out to the right", "en-us+m7")
+    line = np.frombuffer(speech, dtype=np.int16).astype(np.float64)
+    # White noise at 15 dB below the speech, also a quarter second either side (VAD pre-roll).
+    heard = np.random.default_rng(15).normal(0.0, np.sqrt(np.mean(line**2) / 10**1.5), len(line) + RATE // 2)
+    heard[RATE // 4 : RATE // 4 + len(line)] += line
+    result = recognizer.recognize(np.clip(heard, -32768, 32767).astype("<i2").tobytes(), RATE)
+    assert (result.kind, result.canonical) == (RecognitionKind.COMMAND, "lookout@right"), result
 
 
 @pytest.mark.unit

@@ -91,11 +91,18 @@ def test_an_extra_form_must_be_a_command_in_normal_form() -> None:
 @pytest.mark.unit
 def test_commands_can_be_asked_for_politely_phrases_and_questions_cannot() -> None:
     meaning = {form.words: form for form in FORMS}
-    polite = ("please look up", "can you pan left", "could you turn to the left please", "move ahead please")
-    for words in polite:
+    # The polite form and how many of its words are politeness.
+    polite = {
+        "please look up": 1,
+        "can you pan left": 2,
+        "could you turn to the left please": 3,
+        "move ahead please": 1,
+    }
+    for words, politeness in polite.items():
         assert meaning[words].kind is RecognitionKind.COMMAND and meaning[words].polite, words
+        assert meaning[words].polite_words == politeness, words
     assert meaning["can you pan left"].canonical == "pan@left"
-    assert not meaning["pan left"].polite
+    assert not meaning["pan left"].polite and meaning["pan left"].polite_words == 0
     for words in ("can you wake up", "go to sleep please", "please what time is it"):
         assert words not in meaning
     assert not meaning["please stop"].polite  # a stop phrase of its own, not a wrapped command
