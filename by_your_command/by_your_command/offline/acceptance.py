@@ -25,10 +25,11 @@ Wake/sleep/stop phrases are one or two words, so chat holding one ("I'm freezing
 to accept_regret (nearly what it wrote freely), with pocketsphinx agreeing only up to
 phrase_regret, and never on the alignment or the reranking score alone. A polite form ("please
 follow me") is taken on Moonshine's word up to near_regret: pocketsphinx does not know the
-polite words, and in noise Moonshine makes "please" of any "pl..." ("play some music"). Beyond
-that only up to polite_agree_regret, when pocketsphinx's grammar heard its command and Moonshine
-wrote a polite word ("please", "can", "could"; in noise the closing "please" is often "clean"),
-and within written_regret_per_word per word of the command it wraps.
+polite words. Beyond that only up to polite_regret, when Moonshine wrote a polite word ("please",
+"can", "could"; in noise the closing "please" is often "clean") and the form is within
+written_regret_per_word per word of the command it wraps, and then when pocketsphinx's grammar
+heard that command or the reranking score reaches evidence_score; the latter not in noise, where
+Moonshine makes "please" of any "pl..." ("play some music" was taken as "please follow me").
 Whatever the path, beyond accept_regret a form is not taken when Moonshine wrote some of its words
 and nothing else ("Left" for "reach left", "Up." for "look up": a word said alone, the rest of the
 form unheard), nor when Moonshine finds a longer form of another meaning that holds all its words,
@@ -68,9 +69,11 @@ class AcceptLimits:
     evidence_score: float = -4.5  # a reranking score (rescoring.py) this high is evidence enough
     confirm_regret: float = 12.0
     phrase_regret: float = 6.0
-    # A polite form beyond near_regret: taken up to this when pocketsphinx's grammar heard its
-    # command and Moonshine wrote a polite word ("Can you look out to the light?").
-    polite_agree_regret: float = 9.0
+    # A polite form beyond near_regret: taken up to this when Moonshine wrote a polite word ("Can
+    # you look out to the light?") and pocketsphinx's grammar heard its command or, where
+    # polite_on_reranking, the reranking score reaches evidence_score.
+    polite_regret: float = 9.0
+    polite_on_reranking: bool = True
     # Beyond near_regret, when Moonshine freely wrote words of its own: at most this regret per
     # word of the form (a short form is then a word away from what was said).
     written_regret_per_word: float = 3.5
@@ -88,7 +91,7 @@ class AcceptLimits:
             self.aligned_regret,
             self.confirm_regret,
             self.phrase_regret,
-            self.polite_agree_regret,
+            self.polite_regret,
         )
         values = (
             self.accept_regret,
@@ -117,13 +120,15 @@ class AcceptLimits:
 def _noisy_default() -> AcceptLimits:
     """Looser where Moonshine and pocketsphinx's grammar agree and on the alignment path, stricter
     on Moonshine's word alone (the noise suppression makes it surer of chat too: "move along" as
-    "move ahead"). The verified path keeps the clean limit: up to 16 it took 4 of 2376 tuning chat
-    lines in white and pink noise at 15 dB for 6 more of 892 commands (docs/offline.md)."""
+    "move ahead") and for polite forms. The verified path keeps the clean limit: up to 16 it took 4
+    of 2376 tuning chat lines in white and pink noise at 15 dB for 6 more of 892 commands
+    (docs/offline.md)."""
     return AcceptLimits(
         near_regret=2.5,
         agree_regret=13.0,
         aligned_regret=7.0,
         written_regret_per_word=5.0,
+        polite_on_reranking=False,
     )
 
 

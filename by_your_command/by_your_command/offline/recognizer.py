@@ -449,18 +449,16 @@ class OfflineRecognizer:
         agrees = grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score)
         if form.words not in self._pocketsphinx_forms:
             # pocketsphinx does not know the polite words or the extra forms: on Moonshine's word,
-            # which in noise makes "please" of any "pl..." ("play some music" as "please follow
-            # me"), unless pocketsphinx's grammar heard the command a polite form wraps.
+            # or a polite form Moonshine wrote politely with more evidence for its command (not
+            # on the alignment path; acceptance.py).
             if score.regret <= limits.near_regret:
                 return score
-            politely_asked = form.polite and not form.extra and agrees
-            if (
-                politely_asked
-                and score.regret <= limits.polite_agree_regret
-                and self._written_politely(score, free_text, limits)
-            ):
-                return score
-            return None
+            if not form.polite or form.extra or score.regret > limits.polite_regret:
+                return None
+            if not self._written_politely(score, free_text, limits):
+                return None
+            reranked = limits.polite_on_reranking and best.combined >= limits.evidence_score
+            return score if agrees or reranked else None
         kind = form.kind
         # A phrase on Moonshine's word alone only if it is nearly what Moonshine wrote: in noise
         # "what's up" is "wake up" at regret 1.1.

@@ -16,13 +16,13 @@ def test_limits_are_checked() -> None:
     with pytest.raises(ValueError, match="accept_regret"):
         AcceptLimits(phrase_regret=0.5)
     with pytest.raises(ValueError, match="polite"):
-        AcceptLimits(polite_agree_regret=0.5)
+        AcceptLimits(polite_regret=0.5)
     with pytest.raises(ValueError, match="accept_regret"):
         AcceptLimits(accept_regret=-1.0)
     for bad in (
         {"aligned_per_frame": math.nan},
         {"phrase_regret": math.inf},
-        {"polite_agree_regret": math.nan},
+        {"polite_regret": math.nan},
         {"end_regret": math.nan},
         {"evidence_score": -math.inf},
     ):

@@ -346,13 +346,14 @@ def test_a_reranking_score_that_weighs_enough_evidence_is_taken_on_its_own(
 
 
 @pytest.mark.unit
-def test_a_polite_form_needs_moonshines_word_or_its_politeness_and_the_grammar(
+def test_a_polite_form_needs_moonshines_word_or_its_politeness_and_more_evidence(
     recognizer: OfflineRecognizer,
 ) -> None:
-    """In noise Moonshine makes "please" of any "pl..." ("play some music" as "please follow me"),
-    and pocketsphinx does not know the polite words: beyond near_regret a polite form is taken
-    only when pocketsphinx's grammar heard the command it wraps and Moonshine wrote a polite word,
-    within the written limit per word of the command (not of the polite words it wrote too)."""
+    """pocketsphinx does not know the polite words, and in noise Moonshine makes "please" of any
+    "pl..." ("play some music" as "please follow me"): beyond near_regret a polite form is taken
+    only when Moonshine wrote a polite word, within the written limit per word of the command (not
+    of the polite words it wrote too), and pocketsphinx's grammar heard the command it wraps or,
+    in quiet only, the reranking score is evidence enough. Never on the alignment path."""
     plain, polite = _form(recognizer, "follow me"), _form(recognizer, "please follow me")
     limits = recognizer.config.acceptance.noisy
     choose = _chooser(recognizer, limits)
@@ -360,23 +361,29 @@ def test_a_polite_form_needs_moonshines_word_or_its_politeness_and_the_grammar(
     assert choose([_rescored(FormScore(polite, -3.0, near))], None) is not None
     strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.evidence_score + 3.0}
     heard = recognizer.forms[plain]
-    for regret in (limits.aligned_regret - 0.5, limits.polite_agree_regret - 0.5):
+    for regret in (limits.aligned_regret - 0.5, limits.polite_regret - 0.5):
         assert choose([_rescored(FormScore(plain, -9.0, regret), **strong)], heard) is not None
         assert choose([_rescored(FormScore(polite, -9.0, regret), **strong)], heard) is None  # wrote nothing
-    within = FormScore(polite, -9.0, limits.polite_agree_regret - 0.5)
+    within = FormScore(polite, -9.0, limits.polite_regret - 0.5)
     assert choose([_rescored(within)], heard, free_text="Please follow the meat.") is within
     assert choose([_rescored(within)], heard, free_text="Lay some music.") is None  # no polite word
     assert choose([_rescored(within)], None, free_text="Please follow the meat.") is None  # grammar did not
-    beyond = FormScore(polite, -9.0, limits.polite_agree_regret + 0.5)
+    beyond = FormScore(polite, -9.0, limits.polite_regret + 0.5)
     assert choose([_rescored(beyond)], heard, free_text="Please follow the meat.") is None
     # "follow me" is two words: taken up to written_regret_per_word x 2 from what Moonshine wrote.
     clean = recognizer.config.acceptance.clean
     choose_clean = _chooser(recognizer, clean)
     near_written = FormScore(polite, -9.0, 2 * clean.written_regret_per_word - 0.5)
     far = FormScore(polite, -9.0, 2 * clean.written_regret_per_word + 0.5)
-    assert clean.near_regret < near_written.regret and far.regret <= clean.polite_agree_regret
+    assert clean.near_regret < near_written.regret and far.regret <= clean.polite_regret
     assert choose_clean([_rescored(near_written)], heard, free_text="Please follow the meat.") is near_written
     assert choose_clean([_rescored(far)], heard, free_text="Please follow the meat.") is None
+    # The grammar heard something else: the reranking score decides, in quiet only.
+    for evidence, taken in ((clean.evidence_score + 0.5, True), (clean.evidence_score - 0.5, False)):
+        chosen = choose_clean([_rescored(near_written, combined=evidence)], None, free_text="Please follow.")
+        assert (chosen is near_written) is taken, evidence
+    sure = _rescored(within, combined=limits.evidence_score + 3.0)
+    assert choose([sure], None, free_text="Please follow the meat.") is None  # in noise
 
 
 @pytest.mark.unit
@@ -393,6 +400,17 @@ def test_a_polite_command_in_noise_is_taken_when_pocketsphinx_heard_the_command(
     heard[RATE // 4 : RATE // 4 + len(line)] += line
     result = recognizer.recognize(np.clip(heard, -32768, 32767).astype("<i2").tobytes(), RATE)
     assert (result.kind, result.canonical) == (RecognitionKind.COMMAND, "lookout@right"), result
+
+
+@pytest.mark.unit
+def test_a_polite_command_the_grammar_misheard_is_taken_on_the_reranking_score(
+    recognizer: OfflineRecognizer, synthesize: Synthesize
+) -> None:
+    """pocketsphinx's grammar knows no polite words and forces them into some form ("look up full
+    left"); Moonshine wrote "Can you move forward left?". The reranking of Moonshine's leading
+    meanings with pocketsphinx's alignments puts "could you move full left" first."""
+    result = recognizer.recognize(synthesize("could you move full left", "en-us+f3"), RATE)
+    assert (result.kind, result.canonical) == (RecognitionKind.COMMAND, "move@full-left"), result
 
 
 @pytest.mark.unit
