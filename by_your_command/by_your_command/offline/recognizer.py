@@ -375,20 +375,18 @@ class OfflineRecognizer:
 
     def _far_from_written(self, score: FormScore, free_text: str, per_word: float) -> bool:
         """Whether Moonshine wrote words of its own and the form is more than `per_word` regret per
-        word from them. An empty transcript is no evidence against the form: Moonshine often
-        writes nothing for espeak's commands."""
-        words = len(self.forms[score.index].words.split())
-        return bool(_words(free_text)) and score.regret > per_word * words
-
-    def _written_politely(self, score: FormScore, free_text: str, limits: AcceptLimits) -> bool:
-        """Whether Moonshine wrote a polite word and the polite form is within
-        written_regret_per_word per word of the command it wraps (the polite words, written as
-        said, cost no regret and earn no allowance)."""
-        written = set(_words(free_text))
+        word of its command from them (a polite form's polite words, written as said, cost no
+        regret and earn no allowance). An empty transcript is no evidence against the form:
+        Moonshine often writes nothing for espeak's commands."""
         form = self.forms[score.index]
         command_words = len(form.words.split()) - form.polite_words
-        return bool(written & self._politeness_cues) and score.regret <= (
-            limits.written_regret_per_word * command_words
+        return bool(_words(free_text)) and score.regret > per_word * command_words
+
+    def _written_politely(self, score: FormScore, free_text: str, limits: AcceptLimits) -> bool:
+        """Whether Moonshine wrote a polite word and the polite form is near what it wrote."""
+        written = set(_words(free_text))
+        return bool(written & self._politeness_cues) and not self._far_from_written(
+            score, free_text, limits.written_regret_per_word
         )
 
     def _written_in_part(self, score: FormScore, free_text: str) -> bool:

@@ -619,6 +619,15 @@ def test_the_verified_form_must_be_near_the_words_moonshine_wrote(recognizer: Of
     assert verified("Up.", 9.1) is None
     assert verified("", 9.1) is not None  # Moonshine wrote nothing: no evidence against it
     assert verified("Mum put.", acceptance.clean.confirm_written_regret_per_word - 0.5) is not None
+    # A polite form's limit counts the command's words: its polite words earn no allowance
+    # ("don't look up" in noise, written "No need to look up", was verified as "please look out").
+    please_look_out = _form(recognizer, "please look out")
+    per_word = acceptance.clean.confirm_written_regret_per_word
+    for regret, taken in ((2 * per_word - 0.5, True), (2 * per_word + 0.5, False)):
+        assert regret <= acceptance.clean.confirm_regret
+        forms = [FormScore(please_look_out, -12.0, regret)]
+        evidence = Evidence(40.0, forms, "Please look at that.", "look out", [])
+        assert (recognizer.decide(evidence, acceptance, lambda: "look out") is not None) is taken, regret
 
 
 @pytest.mark.unit
