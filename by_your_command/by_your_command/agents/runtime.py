@@ -165,6 +165,7 @@ class AgentRuntime:
         self._port_error = ""
         self._session_ending = ""  # the provider announced its end: rotate at the next boundary
         self._recycle = ""  # close the session at the next boundary, for this reason
+        self._close_asked_at = 0.0  # when either was set: the session deadline is due from then on
         self._spins = 0
 
     # --- public ------------------------------------------------------------------------------
@@ -247,9 +248,16 @@ class AgentRuntime:
         self._queue.put_nowait(_STOP)
 
     async def _next_item(self) -> _Item | None:
+        """The next queued item, or None when a deadline is due first. Items already queued are
+        taken without waiting: `wait_for(get(), 0)` cancels the get before it runs, so a deadline
+        that stayed due would otherwise starve the queue (stop() included) for good."""
+        if not self._queue.empty():
+            return self._queue.get_nowait()
         deadline = min((d.when for d in self._deadlines()), default=None)
         timeout = None if deadline is None else max(0.0, deadline - self._clock.now())
-        if timeout == 0.0 and self._spins > 2:
+        if timeout == 0.0:
+            if self._spins <= 2:
+                return None
             timeout = 0.01  # a handler that did not clear its deadline must not spin the loop
         try:
             return await asyncio.wait_for(self._queue.get(), timeout)
@@ -763,6 +771,7 @@ class AgentRuntime:
                 reply.generation_done = True
                 await self._end_stream(reply)
         elif isinstance(event, SessionEnding):
+            self._close_at_boundary()
             self._session_ending = f"the provider is ending the session ({event.reason})"
             log.info(
                 "agent %s: %s; rotating at the next turn boundary", self.config.agent_id, self._session_ending
@@ -1030,10 +1039,16 @@ class AgentRuntime:
         )
         await self._publish("metrics", self._port.publish_metrics(record))
 
+    def _close_at_boundary(self) -> None:
+        """Close the session once idle. Its deadline is a fixed time (when this was asked), never
+        `now()`: a deadline read again after `now` was taken is never due, and the loop froze."""
+        if not (self._session_ending or self._recycle):
+            self._close_asked_at = self._clock.now()
+
     def _session_close_at(self) -> float:
         session = self._session
         if self._session_ending or self._recycle:
-            return self._clock.now()
+            return self._close_asked_at
         close_at = self._last_activity + self.config.pause_timeout_s
         if session is not None and session.opened_at is not None:
             close_at = min(close_at, session.opened_at + self._rotation_age())
@@ -1148,6 +1163,7 @@ class AgentRuntime:
             if self._idle(now):
                 await self._close_session(f"new conversation ({why})")
             else:
+                self._close_at_boundary()
                 self._recycle = f"new conversation ({why})"
 
     async def _conversation_expired(self) -> None:
