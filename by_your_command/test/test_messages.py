@@ -12,6 +12,7 @@ from by_your_command_msgs.msg import (
     AudioChunk,
     AudioDataUtterance,
     AudioDataUtteranceStamped,
+    CommandRequest,
     CommandVerdict,
     PlaybackStatus,
 )
@@ -43,14 +44,23 @@ def sample_messages() -> dict[str, object]:
         stream_id="response-7", played_ms=1234, queued_ms=40, speaking=True, finished=False, interrupted=False
     )
     verdict = CommandVerdict(
-        raw="Pan left.", command="pan@left", accepted=True, reason="arm preset", topic="arm_preset"
+        raw="Pan left.",
+        command="pan@left",
+        accepted=True,
+        reason="arm preset",
+        topic="arm_preset",
+        request_id="agent-1f2e3d-7",
+        index=1,
+        count=2,
     )
+    request = CommandRequest(request_id="agent-1f2e3d-7", text="lookup, pan@left")
     return {
         "by_your_command_msgs/msg/AudioChunk": chunk,
         "by_your_command_msgs/msg/AudioDataUtterance": utterance,
         "by_your_command_msgs/msg/AudioDataUtteranceStamped": stamped,
         "by_your_command_msgs/msg/PlaybackStatus": status,
         "by_your_command_msgs/msg/CommandVerdict": verdict,
+        "by_your_command_msgs/msg/CommandRequest": request,
     }
 
 

@@ -16,7 +16,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from by_your_command.agents.config import AgentConfig, ContextSource
+from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
 from by_your_command.agents.detections import detection2d_array, detections_json
 from by_your_command.agents.inputs import (
     Attention,
@@ -42,6 +42,7 @@ UTTERANCE = "by_your_command_msgs/msg/AudioDataUtterance"
 INTERRUPTION = "by_your_command_msgs/msg/Interruption"
 PLAYBACK = "by_your_command_msgs/msg/PlaybackStatus"
 VERDICT = "by_your_command_msgs/msg/CommandVerdict"
+COMMAND_REQUEST = "by_your_command_msgs/msg/CommandRequest"
 STRING = "std_msgs/msg/String"
 BOOL = "std_msgs/msg/Bool"
 IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -137,6 +138,9 @@ def _verdict(msg: dict[str, Any]) -> RobotInput:
         _field(msg, "accepted", bool, False),
         _field(msg, "reason", str, ""),
         _field(msg, "topic", str, ""),
+        _field(msg, "request_id", str, ""),
+        _field(msg, "index", int, 0),
+        _field(msg, "count", int, 1),
     )
 
 
@@ -175,6 +179,8 @@ class BridgePort:
         if config.context_source is ContextSource.OWN:  # only the authority publishes the transcript
             self._outputs[topics.response_text] = STRING
             self._outputs[topics.prompt_transcript] = STRING
+        if config.role is AgentRole.TOOLS:  # tool calls' commands, answered by request id
+            self._outputs[topics.command_request] = COMMAND_REQUEST
         if config.detections:
             self._outputs[topics.detections] = STRING
             self._outputs[topics.detections_2d] = DETECTION_2D_ARRAY
@@ -235,6 +241,9 @@ class BridgePort:
 
     async def publish_cmd(self, text: str) -> None:
         await self._publish(self._topics.response_cmd, {"data": text})
+
+    async def publish_command_request(self, request_id: str, text: str) -> None:
+        await self._publish(self._topics.command_request, {"request_id": request_id, "text": text})
 
     async def publish_interruption(self, stream_id: str, reason: str, stamp: float) -> None:
         msg = {"header": _stamp(stamp), "stream_id": stream_id, "reason": reason}

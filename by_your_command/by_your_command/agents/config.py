@@ -51,6 +51,7 @@ class Topics:
     response_voice: str = "response_voice"
     response_text: str = "response_text"
     response_cmd: str = "response_cmd"
+    command_request: str = "command_request"  # tool calls: verdicts come back with the request's id
     prompt_transcript: str = "prompt_transcript"
     interruption_signal: str = "interruption_signal"
     metrics: str = "agent_metrics"

@@ -74,6 +74,9 @@ class CommandStatus:
     accepted: bool
     reason: str
     topic: str = ""
+    request_id: str = ""  # the CommandRequest it answers ("" for a response_cmd message)
+    index: int = 0  # its place among that message's verdicts
+    count: int = 1  # how many verdicts that message produced
 
 
 @dataclass(frozen=True)

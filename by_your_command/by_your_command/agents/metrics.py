@@ -15,11 +15,13 @@ class TurnMetrics:
     session: int  # serial of the provider session that served the turn
     turn: int
     turn_kind: str  # "voice" | "text"
-    outcome: str  # "completed" | "cancelled" | "failed" | "interrupted" | "incomplete"
+    # "completed" | "cancelled" | "failed" | "interrupted" | "incomplete" | "undelivered"
+    outcome: str
     first_audio_ms: float | None  # end of user speech (end marker / text) → first reply audio published
     reply_ms: float  # end of user speech → reply finished
     usage: Usage = field(default_factory=Usage)
     provider: str = ""  # Provider.name (monitors price the tokens per provider)
+    reason: str = ""  # why it failed or was not delivered (a report: never said as the robot's words)
 
     def as_dict(self) -> dict[str, Any]:
         return {"record": "turn", **_flatten(self)}

@@ -53,6 +53,9 @@ class RobotPort(Protocol):
     async def publish_cmd(self, text: str) -> None:
         """`response_cmd`: one command for the command processor."""
 
+    async def publish_command_request(self, request_id: str, text: str) -> None:
+        """`command_request`: commands whose verdicts come back on `command_status` with this id."""
+
     async def publish_interruption(self, stream_id: str, reason: str, stamp: float) -> None:
         """`interruption_signal`: cut `stream_id` at the player now."""
 

@@ -42,6 +42,9 @@ class SessionSetup:
     history: Sequence[HistoryTurn] = ()
     tools: Sequence[ToolSpec] = ()
     audio_out: bool = True  # False: text replies only (command agents)
+    # The runtime's conversation: a provider may continue server-side state (Gemini resumption)
+    # only into a session of the same conversation; a reset starts a new one.
+    conversation_id: str = ""
 
 
 class ProviderClosed(ConnectionError):

@@ -14,6 +14,7 @@ import secrets
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from functools import partial
 
 from by_your_command.agents.barge_in import PendingBargeIn, Verdict, judge
 from by_your_command.agents.clock import Clock, LoopClock
@@ -51,6 +52,7 @@ from by_your_command.agents.inputs import (
     VoiceActivity,
 )
 from by_your_command.agents.metrics import Counters, SessionMetrics, SessionOpenedMetrics, TurnMetrics
+from by_your_command.agents.outbox import Outbox
 from by_your_command.agents.port import DetectionReport, PortClosed, RobotPort, VoiceChunk
 from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup
 from by_your_command.agents.reply_audio import ReplyAudio, pieces
@@ -61,6 +63,7 @@ from by_your_command.agents.robot_tool import (
     PendingVerdicts,
     parse_command,
     result_json,
+    verdicts_json,
 )
 from by_your_command.agents.session import (
     EndOfTurn,
@@ -147,6 +150,7 @@ class AgentRuntime:
         self._barge: PendingBargeIn | None = None
         self._barge_turn: Turn | None = None
         self._tools = PendingVerdicts()
+        self._requests = 0  # command requests sent: their ids name this run and this count
         self._provider_backlog = 0  # session messages in the queue, not handled yet
         self._route_deferrals = 0
         self._frame: tuple[CameraFrame, float] | None = None
@@ -155,6 +159,7 @@ class AgentRuntime:
         self._utterance_ended_at = float("-inf")  # frames kept from before this are stale
         self._shown: CameraFrame | None = None  # the last frame sent to the model (detections' pixels)
         self._shown_info: FrameInfo | None = None
+        self._outbox = Outbox(config.agent_id, config.publish_timeout_s, self._count_publish_failure)
         self._streams = 0
         # Stream ids name this run too: a restarted agent's first reply must not continue (or be
         # dropped as) the stream its dead predecessor left in the player under the same id.
@@ -175,6 +180,7 @@ class AgentRuntime:
         now = self._clock.now()
         self._last_activity = now
         self.context.new_conversation(now, self._clock.wall())
+        self._outbox.start()
         pump = asyncio.create_task(self._pump_inputs(), name=f"{self.config.agent_id} inputs")
         log.info(
             "agent %s (%s) running, conversation %s",
@@ -216,6 +222,7 @@ class AgentRuntime:
             await asyncio.gather(pump, return_exceptions=True)
             if self._session is not None:
                 await self._close_session("agent stopped")
+            await self._outbox.close(self.config.publish_timeout_s)
             log.info("agent %s stopped; counters %s", self.config.agent_id, self.counters.snapshot())
 
     def stop(self) -> None:
@@ -487,7 +494,7 @@ class AgentRuntime:
         turn.ended_at = now
         if self.config.context_source is ContextSource.OWN:
             self.context.add(Role.USER, text, now)
-            await self._publish("prompt_transcript", self._port.publish_transcript(text))
+            self._publish("prompt_transcript", partial(self._port.publish_transcript, text))
         self._queue_commit(turn)
 
     def _on_frame(self, frame: CameraFrame) -> None:
@@ -564,7 +571,22 @@ class AgentRuntime:
             session.send(EndOfTurn())
         self._last_activity = self._awaited_at = self._committed_at = self._clock.now()
 
-    async def _finish_turn(self, turn: Turn, outcome: str) -> None:
+    async def _finish_turn(self, turn: Turn, outcome: str, why: str = "") -> None:
+        now = self._clock.now()
+        self._publish_turn(turn, outcome, why)
+        if self._turn_out is turn:
+            self._turn_out = None
+        self.counters.turns += 1
+        if self._session is not None:
+            self._session.turns += 1
+        if self._waiting and self._turn_out is None and self._reconnect_at is None:
+            self._commit(self._waiting.popleft())
+        if self._idle(now) and (self._session_ending or self._recycle or self._rotation_due(now)):
+            await self._close_session(self._session_ending or self._recycle or "rotation before the limit")
+
+    def _publish_turn(self, turn: Turn, outcome: str, why: str) -> None:
+        """The turn's record on `metrics`: a failure and its reason are a report for monitors,
+        never words on `response_text` (which is the robot's speech and the conversation)."""
         now = self._clock.now()
         ended = turn.ended_at if turn.ended_at is not None else now
         first = None if turn.first_audio_at is None else round(1000.0 * (turn.first_audio_at - ended), 1)
@@ -579,33 +601,26 @@ class AgentRuntime:
             round(1000.0 * (now - ended), 1),
             turn.usage,
             self._session.provider.name if self._session is not None else "",
+            why,
         )
-        log.info(
-            "agent %s: turn %d %s (%s), first audio %s ms, reply %.0f ms, tokens in %d out %d",
+        log.log(
+            logging.WARNING if why else logging.INFO,
+            "agent %s: turn %d %s (%s)%s, first audio %s ms, reply %.0f ms, tokens in %d out %d",
             self.config.agent_id,
             turn.number,
             outcome,
             turn.kind,
+            f": {why}" if why else "",
             first,
             record.reply_ms,
             turn.usage.input_tokens,
             turn.usage.output_tokens,
         )
-        if self._turn_out is turn:
-            self._turn_out = None
-        self.counters.turns += 1
-        if self._session is not None:
-            self._session.turns += 1
-        await self._publish("metrics", self._port.publish_metrics(record))
-        if self._waiting and self._turn_out is None and self._reconnect_at is None:
-            self._commit(self._waiting.popleft())
-        if self._idle(now) and (self._session_ending or self._recycle or self._rotation_due(now)):
-            await self._close_session(self._session_ending or self._recycle or "rotation before the limit")
+        self._publish("metrics", partial(self._port.publish_metrics, record))
 
     async def _fail_turn(self, turn: Turn, why: str) -> None:
         self.counters.turns_failed += 1
-        await self._report(f"turn {turn.number} failed: {why}")
-        await self._finish_turn(turn, "failed")
+        await self._finish_turn(turn, "failed", why)
 
     async def _reply_timed_out(self) -> None:
         turn = self._turn_out
@@ -634,8 +649,10 @@ class AgentRuntime:
         ):
             # Cut the player first: no provider round trip between the user's voice and silence.
             stamp = self._clock.wall()
-            await self._publish(
-                "interruption_signal", self._port.publish_interruption(reply.stream_id, "barge_in", stamp)
+            self._outbox.discard_stream(reply.stream_id)
+            self._publish(
+                "interruption_signal",
+                partial(self._port.publish_interruption, reply.stream_id, "barge_in", stamp),
             )
             self.counters.barge_ins += 1
             self._barge = PendingBargeIn(reply, reply.stream_id, now)
@@ -725,7 +742,7 @@ class AgentRuntime:
             opened = SessionOpenedMetrics(
                 self.config.agent_id, self.context.conversation_id, session.serial, session.provider.name
             )
-            await self._publish("metrics", self._port.publish_metrics(opened))
+            self._publish("metrics", partial(self._port.publish_metrics, opened))
         elif isinstance(message, SessionFailed):
             await self._lose_session(message.reason, message.connected, message.error)
         else:
@@ -751,7 +768,7 @@ class AgentRuntime:
                 log.info("agent %s: the provider heard no words", self.config.agent_id)
             elif self.config.context_source is ContextSource.OWN:
                 self.context.add_user_before_reply(event.text, self._clock.now(), self._committed_at)
-                await self._publish("prompt_transcript", self._port.publish_transcript(event.text.strip()))
+                self._publish("prompt_transcript", partial(self._port.publish_transcript, event.text.strip()))
         elif isinstance(event, AssistantTranscript):
             if event.final:
                 rest, _ = await self._take_detections(event.text)
@@ -813,7 +830,7 @@ class AgentRuntime:
         if self.config.context_source is ContextSource.OWN:
             heard = f"{text} [cut off by the user]" if response_id in self._cut else text
             self.context.add(Role.ASSISTANT, heard, self._clock.now())
-        await self._publish("response_text", self._port.publish_text(text))
+        self._publish("response_text", partial(self._port.publish_text, text))
 
     async def _on_text_reply(self, text: str, response_id: str) -> None:
         rest, unreadable = await self._take_detections(text)
@@ -825,7 +842,7 @@ class AgentRuntime:
                 self.config.agent_id,
             )
         elif rest.strip():
-            await self._publish("response_cmd", self._port.publish_cmd(rest.strip()))
+            self._publish("response_cmd", partial(self._port.publish_cmd, rest.strip()))
 
     async def _take_detections(self, text: str) -> tuple[str, bool]:
         """Object detections in a reply go to `detections`, never on: the rest of the text, and
@@ -837,7 +854,7 @@ class AgentRuntime:
         if found.detections and self.config.detections and self.config.topics.detections:
             report = DetectionReport(self.config.agent_id, found.detections, self._shown_frame())
             self.counters.detections_published += 1
-            await self._publish("detections", self._port.publish_detections(report))
+            self._publish("detections", partial(self._port.publish_detections, report))
         elif found.detections:
             self.counters.detections_dropped += len(found.detections)
             log.info(
@@ -862,7 +879,11 @@ class AgentRuntime:
         if turn is not None:
             turn.tool_calls_open.add(call.call_id)
             turn.tool_responses.add(call.response_id)
-        self._tools.add(call.call_id, command, self._clock.now() + self.config.tool_verdict_timeout_s)
+        self._requests += 1
+        request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
+        self._tools.add(
+            call.call_id, request_id, command, self._clock.now() + self.config.tool_verdict_timeout_s
+        )
         # routed by _route_commands, after the provider events already queued behind this call
 
     async def _route_commands(self) -> None:
@@ -877,8 +898,10 @@ class AgentRuntime:
             return
         self._route_deferrals = 0
         for call in waiting:
-            self._tools.routed(call.call_id)
-            await self._publish("response_cmd", self._port.publish_cmd(call.command))
+            self._tools.routed(call.request_id)
+            self._publish(
+                "command_request", partial(self._port.publish_command_request, call.request_id, call.command)
+            )
 
     async def _on_tool_calls_cancelled(self, event: ToolCallCancelled) -> None:
         turn = self._turn_out
@@ -905,12 +928,11 @@ class AgentRuntime:
             await self._finish_turn(turn, "cancelled")
 
     def _on_verdict(self, verdict: CommandStatus) -> None:
-        call = self._tools.match(verdict)
-        if call is None:
-            return  # a verdict for a command some other agent (or a person) sent
-        self._deliver_tool_result(
-            call.call_id, result_json(verdict.accepted, verdict.command or call.command, verdict.reason)
-        )
+        answered = self._tools.take(verdict)
+        if answered is None:
+            return  # one of several, or a verdict for what another agent (or a person) sent
+        call, verdicts = answered
+        self._deliver_tool_result(call.call_id, verdicts_json(verdicts))
 
     async def _tool_verdicts_late(self) -> None:
         for call in self._tools.expired(self._clock.now()):
@@ -1037,7 +1059,7 @@ class AgentRuntime:
             session.usage.input_tokens,
             session.usage.output_tokens,
         )
-        await self._publish("metrics", self._port.publish_metrics(record))
+        self._publish("metrics", partial(self._port.publish_metrics, record))
 
     def _close_at_boundary(self) -> None:
         """Close the session once idle. Its deadline is a fixed time (when this was asked), never
@@ -1119,9 +1141,7 @@ class AgentRuntime:
         if self._attempts >= self.config.connect_attempts or any(not t.replayable for t in pending):
             for lost in pending:
                 self.counters.utterances_undeliverable += 1
-                await self._report(
-                    f"turn {lost.number} ({lost.kind}) not delivered: {reason} ({self._attempts} attempt(s))"
-                )
+                self._publish_turn(lost, "undelivered", f"{reason} ({self._attempts} attempt(s))")
             if self._turn_in is not None and self._turn_in.utterance_id is not None:
                 self._closed_utterances.append(self._turn_in.utterance_id)  # its later chunks are stray
             self._turn_out = self._turn_in = None
@@ -1180,34 +1200,21 @@ class AgentRuntime:
         if reply.stream_started_at is None:
             reply.stream_started_at = self._clock.now()
         chunk = VoiceChunk(reply.stream_id, pcm, reply.sample_rate, False, self._clock.wall())
-        await self._publish("response_voice", self._port.publish_voice(chunk))
+        self._outbox.voice(reply.stream_id, len(pcm), partial(self._port.publish_voice, chunk))
 
     async def _end_stream(self, reply: ReplyAudio) -> None:
         if reply.ended_stream or reply.stream_started_at is None:
             return
         reply.ended_stream = True
         chunk = VoiceChunk(reply.stream_id, b"", reply.sample_rate, True, self._clock.wall())
-        await self._publish("response_voice", self._port.publish_voice(chunk))
+        self._outbox.voice(reply.stream_id, 0, partial(self._port.publish_voice, chunk))
 
-    async def _publish(self, what: str, sending: Awaitable[None]) -> None:
-        """Publish within the deadline; a failure is counted and logged, never raised."""
-        try:
-            await asyncio.wait_for(sending, self.config.publish_timeout_s)
-        except Exception as error:
-            self.counters.publish_failures += 1
-            count = self.counters.publish_failures
-            if count <= 10 or count % 100 == 0:
-                log.warning(
-                    "agent %s: could not publish %s (%d failures): %r",
-                    self.config.agent_id,
-                    what,
-                    count,
-                    error,
-                )
+    def _publish(self, what: str, send: Callable[[], Awaitable[None]]) -> None:
+        """Queued for the outbox's worker: the scheduler never waits on the bridge."""
+        self._outbox.control(what, send)
 
-    async def _report(self, text: str) -> None:
-        log.warning("agent %s: %s", self.config.agent_id, text)
-        await self._publish("response_text", self._port.publish_text(f"[{self.config.agent_id}] {text}"))
+    def _count_publish_failure(self) -> None:
+        self.counters.publish_failures += 1
 
     def _keep_limit(self, rate: int) -> int:
         return int(self.config.connect_buffer_s * rate) * 2

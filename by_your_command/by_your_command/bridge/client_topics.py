@@ -19,6 +19,7 @@ CONTRACT_CLASSES: dict[str, TopicClass] = {
     "camera_forwarded": "video",
     "command_status": "command",
     "response_cmd": "command",
+    "command_request": "command",
     "interruption_signal": "command",
 }
 

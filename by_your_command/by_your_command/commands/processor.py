@@ -84,6 +84,10 @@ class CommandProcessorConfig:
     """Parameters of the command_processor node (the one place their defaults live)."""
 
     input_topic: str = field(default="response_cmd", metadata={"help": "commands from the agents (String)"})
+    request_topic: str = field(
+        default="command_request",
+        metadata={"help": "commands whose verdicts carry the caller's request_id (CommandRequest)"},
+    )
     arm_topic: str = field(default="arm_preset", metadata={"help": "accepted arm presets go here (String)"})
     behavior_topic: str = field(
         default="behavior_command", metadata={"help": "accepted behaviors go here (String)"}
@@ -112,7 +116,14 @@ class CommandProcessorConfig:
     )
 
     def __post_init__(self) -> None:
-        for name in ("input_topic", "arm_topic", "behavior_topic", "wake_topic", "status_topic"):
+        for name in (
+            "input_topic",
+            "request_topic",
+            "arm_topic",
+            "behavior_topic",
+            "wake_topic",
+            "status_topic",
+        ):
             if not getattr(self, name).strip():
                 raise ValueError(f"{name} must not be empty")
         SafetyConfig(min_interval_s=self.min_interval_s)  # validates the interval

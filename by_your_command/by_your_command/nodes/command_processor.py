@@ -1,6 +1,8 @@
 """command_processor: response_cmd text -> validated robot commands on arm/behavior/wake topics.
 
 Every command found gets a CommandVerdict on command_status (accepted or refused, with the reason).
+A CommandRequest (an agent's tool call) is parsed the same way, and each of its verdicts carries
+its request_id, index and count, so the caller matches them by identity, never by text.
 All the logic is in by_your_command.commands; this node only moves messages. The processor bounds
 the work per message (an oversize message costs one linear scan), so a burst of junk cannot keep
 a later `stop` waiting; refusals are counted and their log lines rate-limited.
@@ -11,7 +13,7 @@ from __future__ import annotations
 import time
 import traceback
 
-from by_your_command_msgs.msg import CommandVerdict
+from by_your_command_msgs.msg import CommandRequest, CommandVerdict
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from std_msgs.msg import Bool, String
@@ -22,6 +24,8 @@ from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import RELIABLE
 from by_your_command.nodes._runtime import run_node
 
+MAX_REQUEST_ID_CHARS = 128  # a request id is echoed in every verdict: bounded like any input
+MAX_VERDICTS = 65535  # index and count are uint16 (the processor bounds the pieces far below this)
 REFUSAL_LOG_INTERVAL_S = 1.0  # a flood of junk must not become a flood of log lines (all are counted)
 
 
@@ -37,6 +41,7 @@ class CommandProcessorNode(Node):
         self.wake = self.create_publisher(Bool, self.config.wake_topic, RELIABLE)
         self.status = self.create_publisher(CommandVerdict, self.config.status_topic, RELIABLE)
         self.create_subscription(String, self.config.input_topic, self.on_text, RELIABLE)
+        self.create_subscription(CommandRequest, self.config.request_topic, self.on_request, RELIABLE)
         self.accepted = 0
         self.refused = 0
         self.internal_errors = 0
@@ -50,17 +55,24 @@ class CommandProcessorNode(Node):
         )
 
     def on_text(self, message: String) -> None:
+        self.guarded("response_cmd", message.data, "")
+
+    def on_request(self, message: CommandRequest) -> None:
+        self.guarded("command_request", message.text, message.request_id[:MAX_REQUEST_ID_CHARS])
+
+    def guarded(self, what: str, text: str, request_id: str) -> None:
         try:
-            self.process_text(message.data)
+            self.process_text(text, request_id)
         except Exception as error:  # a bug, not bad input: an escaping exception would end the node
             self.internal_errors += 1
             self.get_logger().error(
-                f"internal error on a response_cmd message ({self.internal_errors} so far): {error!r}\n"
+                f"internal error on a {what} message ({self.internal_errors} so far): {error!r}\n"
                 + traceback.format_exc(limit=5)
             )
 
-    def process_text(self, text: str) -> None:
-        for verdict in self.processor.process(text, time.monotonic()):
+    def process_text(self, text: str, request_id: str = "") -> None:
+        verdicts = self.processor.process(text, time.monotonic())  # never none: a caller waits for one
+        for index, verdict in enumerate(verdicts):
             topic = ""
             reason = verdict.reason
             accepted = verdict.accepted
@@ -69,7 +81,7 @@ class CommandProcessorNode(Node):
                     topic = self.send(verdict)
                 except Exception as error:  # publish() can raise under overload: report, never crash
                     accepted, topic, reason = False, "", f"publish failed: {error}"
-            self.report(verdict, accepted, reason, topic)
+            self.report(verdict, accepted, reason, topic, (request_id, index, len(verdicts)))
 
     def send(self, verdict: Verdict) -> str:
         assert verdict.route is not None
@@ -79,9 +91,19 @@ class CommandProcessorNode(Node):
             self.wake.publish(Bool(data=verdict.route.wake))
         return str(publisher.topic_name)
 
-    def report(self, verdict: Verdict, accepted: bool, reason: str, topic: str) -> None:
+    def report(
+        self, verdict: Verdict, accepted: bool, reason: str, topic: str, place: tuple[str, int, int]
+    ) -> None:
+        request_id, index, count = place
         status = CommandVerdict(
-            raw=verdict.raw, command=verdict.command, accepted=accepted, reason=reason, topic=topic
+            raw=verdict.raw,
+            command=verdict.command,
+            accepted=accepted,
+            reason=reason,
+            topic=topic,
+            request_id=request_id,
+            index=min(index, MAX_VERDICTS),
+            count=min(count, MAX_VERDICTS),
         )
         status.header.stamp = self.get_clock().now().to_msg()
         self.status.publish(status)

@@ -452,6 +452,7 @@ class GraphProbe:
             self.listeners_needed[topic("response_voice")] = 1
         if processor:
             self.listeners_needed[topic("response_cmd")] = 2  # the processor and this probe
+            self.listeners_needed[topic("command_request")] = 1  # tool calls' commands
 
         def up() -> bool:
             check()
@@ -460,6 +461,7 @@ class GraphProbe:
             )
             processor_up = not processor or (
                 node.count_subscribers(topic("response_cmd")) > 1
+                and node.count_subscribers(topic("command_request")) > 0
                 and node.count_publishers(topic("command_status")) > 0
             )
             forwarder_up = not forwarder or (

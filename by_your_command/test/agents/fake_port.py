@@ -13,10 +13,11 @@ from fake_provider import FakeFactory
 from virtual_time import VirtualClock
 
 from by_your_command.agents.config import AgentConfig
-from by_your_command.agents.inputs import PlaybackStatus, RobotInput, UtteranceChunk
+from by_your_command.agents.inputs import CommandStatus, PlaybackStatus, RobotInput, UtteranceChunk
 from by_your_command.agents.metrics import MetricsRecord, SessionMetrics, TurnMetrics
 from by_your_command.agents.port import DetectionReport, PortUnavailable, VoiceChunk
 from by_your_command.agents.runtime import AgentRuntime
+from by_your_command.commands.processor import CommandProcessor
 
 _CLOSE = object()
 
@@ -25,6 +26,9 @@ _CLOSE = object()
 class FakePort:
     published: list[tuple[float, str, Any]] = field(default_factory=list)  # (time, kind, payload)
     unavailable: bool = False  # publishes raise PortUnavailable
+    # The real command processor answering command requests as the node does (verdicts with the
+    # request's id, index and count); None: the test answers them itself.
+    processor: CommandProcessor | None = None
 
     def __post_init__(self) -> None:
         self._inputs: asyncio.Queue[object] = asyncio.Queue()
@@ -55,6 +59,27 @@ class FakePort:
 
     async def publish_cmd(self, text: str) -> None:
         await self._record("cmd", text)
+
+    async def publish_command_request(self, request_id: str, text: str) -> None:
+        await self._record("request", (request_id, text))
+        if self.processor is not None:
+            verdicts = self.processor.process(text, asyncio.get_running_loop().time())
+            for index, v in enumerate(verdicts):
+                topic = "" if v.route is None else v.route.destination.value
+                self.push(
+                    CommandStatus(
+                        v.raw, v.command, v.accepted, v.reason, topic, request_id, index, len(verdicts)
+                    )
+                )
+
+    def requests(self) -> list[str]:
+        """The texts of the command requests published, in order."""
+        return [text for _, text in self.of("request")]
+
+    def verdict(self, index: int, accepted: bool = True, reason: str = "arm_preset") -> CommandStatus:
+        """The processor's only verdict on request `index` (the one command in its text)."""
+        request_id, text = self.of("request")[index]
+        return CommandStatus(text, text if accepted else "", accepted, reason, "", request_id, 0, 1)
 
     async def publish_interruption(self, stream_id: str, reason: str, stamp: float) -> None:
         await self._record("interruption", (stream_id, reason))
@@ -132,8 +157,10 @@ class Agent:
 
 
 @contextlib.asynccontextmanager
-async def running_agent(config: AgentConfig, factory: FakeFactory) -> AsyncIterator[Agent]:
-    port = FakePort()
+async def running_agent(
+    config: AgentConfig, factory: FakeFactory, processor: CommandProcessor | None = None
+) -> AsyncIterator[Agent]:
+    port = FakePort(processor=processor)
     runtime = AgentRuntime(config, "You are a test robot.", port, factory, VirtualClock())
     task = asyncio.create_task(runtime.run())
     agent = Agent(runtime, port, factory, task)

@@ -21,6 +21,7 @@ from by_your_command.agents.events import (
 from by_your_command.agents.inputs import CommandStatus, SharedTurn
 from by_your_command.agents.provider import Role
 from by_your_command.agents.robot_tool import TOOL_NAME
+from by_your_command.commands.processor import CommandProcessorConfig
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 
@@ -73,6 +74,8 @@ def said(response_id: str, text: str) -> Script:
 
 
 def test_tool_mode_returns_the_processor_verdict_or_no_answer_from_the_robot() -> None:
+    """The verdicts come from the real CommandProcessor, matched by the request id it echoes."""
+
     async def scenario() -> None:
         config = AgentConfig(role=AgentRole.TOOLS, tool_verdict_timeout_s=3.0)
         factory = FakeFactory(
@@ -81,25 +84,58 @@ def test_tool_mode_returns_the_processor_verdict_or_no_answer_from_the_robot() -
             tool_call("r3", "c2", "dance@moon"),
             said("r4", "I can't do that."),
         )
-        async with running_agent(config, factory) as agent:
+        processor = CommandProcessorConfig(min_interval_s=0.0).build()
+        async with running_agent(config, factory, processor) as agent:
             await speak(agent.port, 1, seconds=0.3)
-            await asyncio.sleep(0.5)
-            assert agent.port.of("cmd") == ["pan@left"]
-            agent.port.push(CommandStatus("someone else's", "", False, "unknown"))  # not ours: ignored
-            agent.port.push(CommandStatus("Pan@Left", "pan@left", True, "arm_preset"))
-            await asyncio.sleep(1.0)
+            await asyncio.sleep(1.5)
+            agent.port.processor = None  # the robot stops answering
             await speak(agent.port, 2, seconds=0.3)
-            await asyncio.sleep(5.0)  # the robot never answers this one
+            await asyncio.sleep(5.0)
             await agent.stop()
+        assert agent.port.requests() == ["pan@left", "dance@moon"]
+        assert agent.port.of("cmd") == []  # tool calls never go out as anonymous response_cmd text
         provider = factory.last
         results = [json.loads(output) for name, (call, output) in _tool_results(provider.calls)]
         assert results == [
-            {"accepted": True, "command": "pan@left", "reason": "arm_preset"},
+            {"accepted": True, "command": "pan@left", "reason": "arm command"},
             {"accepted": False, "command": "dance@moon", "reason": "no answer from the robot"},
         ]
         assert provider.setup is not None and [t.name for t in provider.setup.tools] == [TOOL_NAME]
         assert [t.outcome for t in agent.port.turns()] == ["completed", "completed"]
         assert agent.runtime.counters.tool_timeouts == 1
+
+    run_virtual(scenario())
+
+
+def test_a_call_with_several_commands_is_answered_with_every_verdict_and_only_its_own() -> None:
+    async def scenario() -> None:
+        config = AgentConfig(role=AgentRole.TOOLS, tool_verdict_timeout_s=3.0)
+        factory = FakeFactory(tool_call("r1", "c1", "lookup, pan@left, dance@moon"), said("r2", "Done."))
+        processor = CommandProcessorConfig(min_interval_s=0.0).build()
+        async with running_agent(config, factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(0.5)
+            [(request_id, text)] = agent.port.of("request")
+            # the same words from another source, and a verdict naming another request: not ours
+            agent.port.push(CommandStatus("lookup", "lookup", False, "rate limited", "", "", 0, 1))
+            agent.port.push(CommandStatus("lookup", "lookup", False, "other", "", "someone-else-1", 0, 1))
+            verdicts = processor.process(text, 0.0)
+            for index, v in reversed(list(enumerate(verdicts))):  # in any order
+                agent.port.push(
+                    CommandStatus(v.raw, v.command, v.accepted, v.reason, "", request_id, index, 3)
+                )
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        [(_, (call, output))] = _tool_results(factory.last.calls)
+        result = json.loads(output)
+        assert call == "c1" and result["accepted"] is False
+        assert [(c["command"], c["accepted"]) for c in result["commands"]] == [
+            ("lookup", True),
+            ("pan@left", True),
+            ("dance@moon", False),
+        ]
+        assert "dance@moon" in result["reason"] and "unknown" in result["reason"]
+        assert agent.runtime.counters.tool_timeouts == 0
 
     run_virtual(scenario())
 

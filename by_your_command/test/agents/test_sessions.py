@@ -6,11 +6,11 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from fake_port import running_agent, speak
+from fake_port import FakePort, running_agent, speak
 from fake_provider import FakeFactory, FakeProvider, spoken_reply
-from virtual_time import run_virtual
+from virtual_time import VirtualClock, run_virtual
 
-from by_your_command.agents.config import AgentConfig
+from by_your_command.agents.config import AgentConfig, EchoMode
 from by_your_command.agents.events import ProviderError, SessionEnding, Usage, UserTranscript
 from by_your_command.agents.inputs import (
     ConversationReset,
@@ -20,8 +20,9 @@ from by_your_command.agents.inputs import (
     VoiceActivity,
 )
 from by_your_command.agents.metrics import SessionOpenedMetrics
+from by_your_command.agents.port import VoiceChunk
 from by_your_command.agents.provider import ProviderFailure, Role
-from by_your_command.agents.runtime import AgentFatal
+from by_your_command.agents.runtime import AgentFatal, AgentRuntime
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 
@@ -137,8 +138,9 @@ def test_a_turn_that_cannot_be_delivered_is_reported_and_counted() -> None:
             await asyncio.sleep(30.0)
             await agent.stop()
         assert len(factory.created) == 3
-        [report] = agent.port.of("text")
-        assert "not delivered" in report and "network unreachable" in report
+        [report] = agent.port.turns()
+        assert report.outcome == "undelivered" and "network unreachable" in report.reason
+        assert agent.port.of("text") == []  # a report is not the robot's speech
         assert agent.runtime.counters.utterances_undeliverable == 1
         assert agent.runtime.counters.connect_failures == 3
 
@@ -157,7 +159,8 @@ def test_a_reply_cut_by_a_dropped_session_is_failed_and_reported() -> None:
             await asyncio.sleep(2.0)
             await agent.stop()
         assert [t.outcome for t in agent.port.turns()] == ["failed", "completed"]
-        assert any("failed" in text for text in agent.port.of("text"))
+        assert "the provider closed the session" in agent.port.turns()[0].reason
+        assert agent.port.of("text") == ["hello there"]  # the second reply's words, and no report
         assert agent.runtime.counters.turns_failed == 1
 
     run_virtual(scenario())
@@ -235,7 +238,36 @@ def test_publishing_while_the_bridge_is_down_is_counted_not_fatal() -> None:
             await speak(agent.port, 2, seconds=0.3)
             await asyncio.sleep(1.0)
             await agent.stop()
-        assert agent.runtime.counters.publish_failures >= 4
+        # turn 1 while down: session opened, two audio chunks and the stream's end, the words, the turn
+        assert agent.runtime.counters.publish_failures == 6
         assert [t.turn for t in agent.port.turns()] == [2]
+        assert agent.port.of("text") == ["hello there"]
+
+    run_virtual(scenario())
+
+
+def test_a_slow_bridge_never_delays_an_interruption_and_the_cut_audio_is_not_sent() -> None:
+    class SlowVoicePort(FakePort):
+        async def publish_voice(self, chunk: VoiceChunk) -> None:
+            await asyncio.sleep(1.5)  # each chunk takes 1.5 s to go out (under the publish timeout)
+            await super().publish_voice(chunk)
+
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=2.0))  # ten chunks, all at once
+        port = SlowVoicePort()
+        config = AgentConfig(echo_mode=EchoMode.AEC)  # the user may cut in
+        runtime = AgentRuntime(config, "You are a test robot.", port, factory, VirtualClock())
+        task = asyncio.create_task(runtime.run())
+        await speak(port, 1, seconds=0.3)
+        await asyncio.sleep(0.5)
+        onset = asyncio.get_running_loop().time()
+        port.push(VoiceActivity(True))
+        await asyncio.sleep(10.0)
+        port.close()
+        await asyncio.wait_for(task, 30)
+        [(at, _, (stream, reason))] = [entry for entry in port.published if entry[1] == "interruption"]
+        assert at == onset and reason == "barge_in"  # not after the audio queued before it
+        sent = [chunk for chunk in port.voice() if chunk.stream_id == stream]
+        assert 0 < len(sent) < 10  # what was still queued when the reply was cut never went out
 
     run_virtual(scenario())

@@ -19,7 +19,6 @@ from by_your_command.agents.events import (
     ToolCall,
     ToolCallCancelled,
 )
-from by_your_command.agents.inputs import CommandStatus
 from by_your_command.agents.robot_tool import TOOL_NAME
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
@@ -57,7 +56,7 @@ def test_a_call_cancelled_with_it_is_never_routed_nor_answered() -> None:
             await speak(agent.port, 2, seconds=0.3)
             await asyncio.sleep(1.0)
             await agent.stop()
-        assert agent.port.of("cmd") == []
+        assert agent.port.requests() == []
         assert tool_results(factory.last.calls) == []
         counters = agent.runtime.counters
         assert (counters.tool_calls_cancelled, counters.commands_withheld, counters.tool_timeouts) == (
@@ -77,9 +76,9 @@ def test_a_call_cancelled_after_routing_gets_no_result_even_when_the_verdict_com
         async with running_agent(TOOLS, factory) as agent:
             await speak(agent.port, 1, seconds=0.3)
             await asyncio.sleep(0.3)
-            assert agent.port.of("cmd") == ["pan@left"]  # routed at once, not held back
+            assert agent.port.requests() == ["pan@left"]  # routed at once, not held back
             await asyncio.sleep(1.0)  # cancelled meanwhile
-            agent.port.push(CommandStatus("pan@left", "pan@left", True, "arm_preset"))
+            agent.port.push(agent.port.verdict(0))
             await asyncio.sleep(5.0)
             await agent.stop()
         assert tool_results(factory.last.calls) == []
@@ -101,7 +100,7 @@ def test_cancelling_answered_or_unknown_calls_changes_nothing() -> None:
         async with running_agent(TOOLS, factory) as agent:
             await speak(agent.port, 1, seconds=0.3)
             await asyncio.sleep(0.5)
-            agent.port.push(CommandStatus("pan@left", "pan@left", True, "arm_preset"))
+            agent.port.push(agent.port.verdict(0))
             await asyncio.sleep(3.0)
             await agent.stop()
         [(call_id, output)] = tool_results(factory.last.calls)  # type: ignore[misc]

@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 import rclpy
-from by_your_command_msgs.msg import CommandVerdict
+from by_your_command_msgs.msg import CommandRequest, CommandVerdict
 from byc_testing import REPO_ROOT, python_module, running_process, wait_for
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -134,6 +134,35 @@ def test_commands_are_routed_and_every_verdict_is_published(probe: Probe, ros_na
         ("tenhut", "tenhut", True, f"{ros_namespace}/arm_preset"),
     ]
     assert "unknown command" in probe.verdicts()[2].reason
+    assert {(v.request_id, v.count) for v in probe.verdicts()} == {("", 2), ("", 1), ("", 3)}
+
+
+@pytest.mark.ros
+def test_a_request_s_verdicts_carry_its_id_and_their_place(probe: Probe, ros_namespace: str) -> None:
+    """A tool call's verdicts are told apart by identity: the same text on response_cmd (another
+    source) gets verdicts without the id, and a request with no command still gets its answer."""
+    requests = probe.node.create_publisher(CommandRequest, "command_request", RELIABLE)
+    subscriptions = [listen(probe, "command_status", CommandVerdict), listen(probe, "arm_preset", String)]
+    with start_processor(ros_namespace, "-p", "min_interval_s:=0.0") as process:
+        wait_connected(probe, process, subscriptions)
+        wait_for(lambda: probe.spin() or requests.get_subscription_count() > 0, timeout=20, what="requests")
+        probe.send("lookup, pan@left")
+        requests.publish(CommandRequest(request_id="agent-a-1", text="lookup, pan@left"))
+        requests.publish(CommandRequest(request_id="agent-a-2", text=" , "))
+        wait_for(lambda: probe.spin() or len(probe.verdicts()) >= 5, timeout=30, what="5 verdicts")
+
+    # the two topics are two queues: their messages may be handled in either order
+    places = sorted((v.request_id, v.index, v.count, v.command, v.accepted) for v in probe.verdicts())
+    assert places == [
+        ("", 0, 2, "lookup", True),
+        ("", 1, 2, "pan@left", True),
+        ("agent-a-1", 0, 2, "lookup", True),
+        ("agent-a-1", 1, 2, "pan@left", True),
+        ("agent-a-2", 0, 1, "", False),
+    ]
+    [empty] = [v for v in probe.verdicts() if v.request_id == "agent-a-2"]
+    assert "no command" in empty.reason
+    assert sorted(probe.data("arm_preset")) == ["lookup", "lookup", "pan@left", "pan@left"]
 
 
 @pytest.mark.ros
@@ -259,7 +288,7 @@ def test_an_internal_error_is_logged_and_counted_and_the_node_keeps_listening(pr
             raise RuntimeError("a bug in the processor")
 
         node.processor.process = broken  # type: ignore[method-assign]
-        (subscription,) = node.subscriptions
+        subscription = next(s for s in node.subscriptions if s.topic_name.endswith("/response_cmd"))
         subscription.callback(String(data="stop"))  # unguarded, this would end the executor's spin
         assert node.internal_errors == 1
         node.processor.process = healthy  # type: ignore[method-assign]

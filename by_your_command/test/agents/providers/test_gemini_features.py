@@ -153,7 +153,7 @@ def test_the_runtime_sends_no_result_for_a_cancelled_call_and_ends_the_turn() ->
         task = asyncio.create_task(runtime.run())
         try:
             port.push(PromptText("please wave"))
-            await until(lambda: port.of("cmd") == ["wave"], "the command routed")
+            await until(lambda: port.requests() == ["wave"], "the command routed")
             await until(lambda: runtime.counters.tool_calls_cancelled == 1, "the cancellation")
             await until(lambda: [t.outcome for t in port.turns()] == ["cancelled"], "the turn ended")
             for sequence in range(5):  # the next question is answered as usual

@@ -34,7 +34,7 @@ from by_your_command.agents.events import (
     Usage,
     UserTranscript,
 )
-from by_your_command.agents.inputs import CommandStatus, UtteranceChunk
+from by_your_command.agents.inputs import UtteranceChunk
 from by_your_command.agents.provider import ProviderClosed, SessionSetup
 from by_your_command.agents.providers.offline import OfflineProvider
 from by_your_command.agents.providers.offline_config import OfflineConfig
@@ -428,8 +428,8 @@ def test_the_runtime_publishes_a_spoken_command_and_speaks_the_verdict(
         for sequence, piece in enumerate(pieces):
             port.push(UtteranceChunk(piece, RATE, 1, sequence, sequence == len(pieces) - 1))
             await asyncio.sleep(0.1)
-        await wait_until(lambda: port.of("cmd") == ["follow@me"])
-        port.push(CommandStatus("follow@me", "follow@me", True, "behavior command", "behavior_command"))
+        await wait_until(lambda: port.requests() == ["follow@me"])
+        port.push(port.verdict(0, reason="behavior command"))
         await wait_until(lambda: "Following you." in port.of("text"))
         await wait_until(lambda: any(chunk.end_of_stream for chunk in port.voice()))
         assert port.voice() and all(chunk.pcm or chunk.end_of_stream for chunk in port.voice())
