@@ -95,6 +95,9 @@ class AgentConfig:
     # tools, camera
     tool_verdict_timeout_s: float = 3.0
     max_frame_age_s: float = 5.0
+    # A frame that arrived this long before a question's first audio is of its time; an older one
+    # goes only if none arrives while the question is spoken.
+    frame_lead_s: float = 0.5
     # object detections (Gemini's box_2d JSON) in the model's text are published on topics.detections
     # (never on response_cmd, whatever this says); off: they are counted and dropped
     detections: bool = False
@@ -185,6 +188,8 @@ def parse_agent_config(data: Any, source: str = "agent config") -> AgentConfig:
     if config is not None:
         if config.min_barge_in_ms < 0:
             problems.append(f"min_barge_in_ms: must be >= 0, got {config.min_barge_in_ms}")
+        if not 0 <= config.frame_lead_s <= config.max_frame_age_s:
+            problems.append(f"frame_lead_s: must be within 0..max_frame_age_s, got {config.frame_lead_s}")
         if config.backoff_initial_s > config.backoff_max_s:
             problems.append("backoff_initial_s: must not exceed backoff_max_s")
         if not config.agent_id.strip():

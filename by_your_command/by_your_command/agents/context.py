@@ -46,6 +46,11 @@ class ContextStore:
         self._last_activity = now
         return self.conversation_id
 
+    @property
+    def serial(self) -> int:
+        """Counts conversations: tells a new one from the old even when a reset reuses its id."""
+        return self._serial
+
     def expired(self, now: float) -> bool:
         """True when the conversation has been idle longer than its timeout."""
         return self._last_activity is not None and now - self._last_activity >= self.conversation_timeout_s

@@ -90,6 +90,7 @@ MAX_TEXT_CHARS = 4000  # a typed turn longer than this is cut (and counted)
 MAX_FRAME_BYTES = 4 * 1024 * 1024
 INPUT_BACKLOG = 256  # robot inputs queued before the pump stops reading (back-pressure to the bridge)
 RECENT_UTTERANCES = 32  # closed utterance ids remembered, to tell late chunks from new utterances
+RECENT_CUTS = 64  # cut responses remembered (their late audio and words are dropped); bounded
 # A tool call's command is routed once the provider events queued behind it are handled (a
 # cancellation may be among them), but never held behind more than this many.
 MAX_ROUTE_DEFERRALS = 64
@@ -146,7 +147,7 @@ class AgentRuntime:
         self._waiting: deque[Turn] = deque()  # ended turns committed after the current reply
         self._closed_utterances: deque[int] = deque(maxlen=RECENT_UTTERANCES)
         self._reply: ReplyAudio | None = None  # the latest spoken reply (may still be playing)
-        self._cut: set[str] = set()  # responses cut by a confirmed barge-in
+        self._cut: deque[str] = deque(maxlen=RECENT_CUTS)  # responses cut by a confirmed barge-in
         self._barge: PendingBargeIn | None = None
         self._barge_turn: Turn | None = None
         self._tools = PendingVerdicts()
@@ -171,6 +172,7 @@ class AgentRuntime:
         self._session_ending = ""  # the provider announced its end: rotate at the next boundary
         self._recycle = ""  # close the session at the next boundary, for this reason
         self._close_asked_at = 0.0  # when either was set: the session deadline is due from then on
+        self._session_conversation = 0  # the conversation (context.serial) the session serves
         self._spins = 0
 
     # --- public ------------------------------------------------------------------------------
@@ -404,6 +406,7 @@ class AgentRuntime:
             self._turns, "voice", now, self._keep_limit(session.input_sample_rate), chunk.utterance_id
         )
         turn.resampler = StreamResampler(chunk.sample_rate, session.input_sample_rate)
+        turn.frame_since = self._utterance_ended_at
         turn.last_chunk_at = now
         turn.deferred = bool(self._waiting)
         if self._barge is not None and self._barge_turn is None:
@@ -435,9 +438,11 @@ class AgentRuntime:
         self._append_audio(turn, turn.resample(chunk.pcm, chunk.sample_rate, chunk.is_end))
         if first and self._session is not None:
             # After the question's first audio (Gemini opens the user's activity with it), so the
-            # frame is part of the question. A frame forwarded at its onset goes with it; one left
-            # over from while the previous question was spoken does not (it shows the past).
-            if self._send_frame(self._session, since=self._utterance_ended_at):
+            # frame is part of the question. Only a frame from the question's time goes now: an
+            # older periodic one waits, since the one forwarded at the onset is usually a few ms
+            # behind this chunk (_on_frame sends it); it goes at the end only if none came.
+            since = max(turn.frame_since, turn.started_at - self.config.frame_lead_s)
+            if self._send_frame(self._session, since=since):
                 self._asked_turn = turn.number
         if chunk.is_end:
             await self._end_utterance(turn)
@@ -463,6 +468,12 @@ class AgentRuntime:
             await self._judge_barge()
             if turn.held:  # judged false: the turn was noise, never sent
                 return
+        session = self._session
+        if session is not None and self._asked_turn != turn.number and not turn.deferred:
+            # no frame came while the question was spoken: an older one (fresh enough) is better
+            # than none for "what do you see?"
+            if self._send_frame(session, since=turn.frame_since):
+                self._asked_turn = turn.number
         self._queue_commit(turn)
 
     async def _utterance_idle(self) -> None:
@@ -579,6 +590,8 @@ class AgentRuntime:
         self.counters.turns += 1
         if self._session is not None:
             self._session.turns += 1
+        if self._turn_out is None and self._session_is_old_conversation():
+            await self._leave_old_conversation(self._recycle or "new conversation")
         if self._waiting and self._turn_out is None and self._reconnect_at is None:
             self._commit(self._waiting.popleft())
         if self._idle(now) and (self._session_ending or self._recycle or self._rotation_due(now)):
@@ -681,7 +694,7 @@ class AgentRuntime:
         reply = barge.reply
         if verdict is Verdict.CONFIRMED:
             reply.cut = True
-            self._cut.add(reply.response_id)
+            self._cut.append(reply.response_id)
             played = reply.played_ms()
             if self._session is not None and self._session.serial == reply.session:
                 self._session.send(Interrupt(reply.response_id, reply.item_id, played))
@@ -767,7 +780,8 @@ class AgentRuntime:
                 self.counters.empty_transcripts += 1
                 log.info("agent %s: the provider heard no words", self.config.agent_id)
             elif self.config.context_source is ContextSource.OWN:
-                self.context.add_user_before_reply(event.text, self._clock.now(), self._committed_at)
+                if not self._session_is_old_conversation():
+                    self.context.add_user_before_reply(event.text, self._clock.now(), self._committed_at)
                 self._publish("prompt_transcript", partial(self._port.publish_transcript, event.text.strip()))
         elif isinstance(event, AssistantTranscript):
             if event.final:
@@ -827,7 +841,7 @@ class AgentRuntime:
         text = text.strip()
         if not text:
             return
-        if self.config.context_source is ContextSource.OWN:
+        if self.config.context_source is ContextSource.OWN and not self._session_is_old_conversation():
             heard = f"{text} [cut off by the user]" if response_id in self._cut else text
             self.context.add(Role.ASSISTANT, heard, self._clock.now())
         self._publish("response_text", partial(self._port.publish_text, text))
@@ -1013,11 +1027,13 @@ class AgentRuntime:
             self.context.history(now),
             (ROBOT_COMMAND_TOOL,) if self.config.role is AgentRole.TOOLS else (),
             audio_out=self.config.speaks,
+            conversation_id=self.context.conversation_id,
         )
         timeouts = SessionTimeouts(
             self.config.connect_timeout_s, self.config.op_timeout_s, self.config.close_timeout_s
         )
         session = Session(self._serial, provider, setup, timeouts, self._clock, self._from_session)
+        self._session_conversation = self.context.serial
         session.start(delay_s=max(0.0, self._not_before - now, (self._reconnect_at or now) - now))
         self._session = session
         self._last_activity = now
@@ -1179,12 +1195,30 @@ class AgentRuntime:
         old = self.context.conversation_id
         new = self.context.new_conversation(now, self._clock.wall(), conversation_id)
         log.info("agent %s: conversation %s → %s (%s)", self.config.agent_id, old, new, why)
-        if self._session is not None:
-            if self._idle(now):
-                await self._close_session(f"new conversation ({why})")
-            else:
-                self._close_at_boundary()
-                self._recycle = f"new conversation ({why})"
+        if self._session is None:
+            return
+        if self._turn_out is None:
+            await self._leave_old_conversation(f"new conversation ({why})")
+        else:  # a reply is being made: it ends first, then the session goes (_finish_turn)
+            self._close_at_boundary()
+            self._recycle = f"new conversation ({why})"
+
+    def _session_is_old_conversation(self) -> bool:
+        return self._session is not None and self._session_conversation != self.context.serial
+
+    async def _leave_old_conversation(self, reason: str) -> None:
+        """Close the old conversation's session now, even while its last reply still plays: what
+        the user says from here on goes to a new session (and only from its kept audio, which
+        the old session may have heard too), so the old server-side history never answers it."""
+        for turn in self._waiting:
+            turn.deferred = True
+        if self._turn_in is not None and not self._turn_in.held:
+            self._turn_in.deferred = True
+        for call in self._tools.expired(float("inf")):  # its calls were the old session's
+            log.info(
+                "agent %s: tool call %s dropped with its conversation", self.config.agent_id, call.call_id
+            )
+        await self._close_session(reason)
 
     async def _conversation_expired(self) -> None:
         if self.context.expired(self._clock.now()):

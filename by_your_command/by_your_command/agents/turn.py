@@ -27,6 +27,7 @@ class Turn:
     next_sequence: int = 0
     speech_ms: float = 0.0  # user audio received (at its own rate)
     last_chunk_at: float = 0.0
+    frame_since: float = float("-inf")  # frames that arrived before this show an earlier question
     audio: bytearray = field(default_factory=bytearray)  # at the provider's input rate
     replayable: bool = True
     held: bool = False  # a pending barge-in holds the audio until the speech proves real

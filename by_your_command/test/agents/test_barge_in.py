@@ -12,6 +12,7 @@ from virtual_time import run_virtual
 
 from by_your_command.agents.config import AgentConfig, AgentRole, EchoMode
 from by_your_command.agents.inputs import PlaybackStatus, VoiceActivity
+from by_your_command.agents.runtime import RECENT_CUTS
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 
@@ -138,5 +139,26 @@ def test_no_barge_in_in_half_duplex_or_from_a_command_agent(config: AgentConfig)
         assert "interrupt" not in factory.last.names()
         if config.role is AgentRole.COMMAND:
             assert agent.port.voice() == []  # never audio
+
+    run_virtual(scenario())
+
+
+def test_the_cut_replies_remembered_are_bounded() -> None:
+    """A long session of interruptions must not grow the agent's memory without end."""
+
+    async def scenario() -> None:
+        rounds = RECENT_CUTS + 30
+        factory = FakeFactory(*(spoken_reply(f"r{n}", seconds=2.0, pace_s=0.2) for n in range(rounds + 1)))
+        async with running_agent(DUPLEX, factory) as agent:
+            await speak(agent.port, 0, seconds=0.3)
+            for n in range(1, rounds + 1):
+                await asyncio.sleep(0.5)
+                stream = agent.port.streams()[-1]
+                agent.port.push(playing(stream, 300))
+                agent.port.push(VoiceActivity(True))
+                await speak(agent.port, n, seconds=1.0)  # real speech: each reply is cut
+            await agent.stop()
+        assert agent.runtime.counters.barge_ins > RECENT_CUTS and agent.runtime.counters.false_barge_ins == 0
+        assert len(agent.runtime._cut) == RECENT_CUTS  # the newest only
 
     run_virtual(scenario())

@@ -71,20 +71,23 @@ def test_a_go_away_while_idle_closes_the_session_and_the_next_turn_is_answered()
     asyncio.run(scenario())
 
 
-def test_a_reset_while_a_reply_plays_closes_the_session_once_it_has_played() -> None:
+def test_a_reset_while_a_reply_is_made_starts_the_next_turn_clean_on_a_new_session() -> None:
     async def scenario() -> None:
-        factory = FakeFactory(spoken_reply("r1", 1.0), spoken_reply("r2", 0.2))
+        factory = FakeFactory(
+            spoken_reply("r1", 1.0, text="once upon a time", pace_s=0.1), spoken_reply("r2", 0.2)
+        )
         agent = RealClockAgent(AgentConfig(pause_timeout_s=100.0), factory)
         agent.port.push(PromptText("tell me a story"))
-        await until(lambda: agent.completed() == 1, "the first reply")
+        await until(lambda: agent.port.voice() != [], "the reply to start")
         agent.port.push(ConversationReset("fresh"))
-        await until(lambda: agent.runtime.context.conversation_id == "fresh", "the reset")
-        assert agent.close_reasons() == []  # the reply still plays: closed at the boundary
-        agent.finish_playback()
         await until(lambda: agent.close_reasons() != [], "the old conversation's session to close")
         assert agent.close_reasons() == ["new conversation (external reset)"]
+        assert [turn.outcome for turn in agent.port.turns()] == ["completed"]  # the reply was not cut
+        assert agent.runtime.context.history(0.0) == ()  # nothing of the old conversation
         agent.port.push(PromptText("hello again"))
         await until(lambda: agent.completed() == 2, "the reply in the new conversation")
         await agent.stop()
+        new = factory.created[1].setup
+        assert new is not None and new.history == () and new.conversation_id == "fresh"
 
     asyncio.run(scenario())

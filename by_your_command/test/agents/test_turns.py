@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from fake_port import running_agent, speak
+from fake_port import running_agent, silence_pcm, speak
 from fake_provider import FakeFactory, spoken_reply
 from virtual_time import run_virtual
 
@@ -140,6 +140,39 @@ def test_each_question_gets_one_frame_from_its_own_time_never_one_left_from_the_
             await agent.stop()
         images = [size for name, size in factory.last.calls if name == "image"]
         assert images == [len(b"\xff\xd8onset-1"), len(b"\xff\xd8onset-2")]
+
+    run_virtual(scenario())
+
+
+def test_the_frame_forwarded_at_the_onset_beats_an_older_periodic_one() -> None:
+    """A periodic frame from 1.9 s before the question must not take its place: the frame
+    forwarded at the onset arrives a few ms after the first chunk, and that one is sent."""
+
+    async def scenario() -> None:
+        factory = FakeFactory(*(spoken_reply(f"r{n}", seconds=0.2) for n in (1, 2, 3)))
+        async with running_agent(AgentConfig(pause_timeout_s=60.0), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)  # a first question opens the session
+            await asyncio.sleep(3.0)
+            agent.port.push(CameraFrame(b"\xff\xd8periodic"))
+            await asyncio.sleep(1.9)
+            agent.port.push(UtteranceChunk(silence_pcm(0.1), 16000, 2, 0, False))
+            await asyncio.sleep(0.01)
+            agent.port.push(CameraFrame(b"\xff\xd8onset"))
+            await asyncio.sleep(0.09)
+            await speak_end(agent, 2, sequence=1)
+            await asyncio.sleep(1.0)
+            # the third question: only the old periodic frame, and nothing while it is spoken
+            agent.port.push(CameraFrame(b"\xff\xd8periodic-3"))
+            await asyncio.sleep(1.9)
+            await speak(agent.port, 3, seconds=0.5)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        calls = factory.last.calls
+        images = [size for name, size in calls if name == "image"]
+        assert images == [len(b"\xff\xd8onset"), len(b"\xff\xd8periodic-3")]
+        ends = [index for index, (name, _) in enumerate(calls) if name == "end_of_turn"]
+        last_image = max(index for index, (name, _) in enumerate(calls) if name == "image")
+        assert ends[1] < last_image < ends[2]  # still part of the third question
 
     run_virtual(scenario())
 
