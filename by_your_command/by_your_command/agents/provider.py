@@ -37,6 +37,12 @@ class ToolSpec:
 
 
 @dataclass(frozen=True)
+class ToolResult:
+    call_id: str
+    output: str  # JSON
+
+
+@dataclass(frozen=True)
 class SessionSetup:
     instructions: str
     history: Sequence[HistoryTurn] = ()
@@ -80,8 +86,9 @@ class Provider(Protocol):
     async def send_image(self, jpeg: bytes) -> None:
         """A camera frame for the model to look at with the next turn."""
 
-    async def send_tool_result(self, call_id: str, output: str) -> None:
-        """The result of a ToolCall; the model continues its reply with it."""
+    async def send_tool_results(self, results: Sequence[ToolResult]) -> None:
+        """The results of every ToolCall of one response, together: the model continues with one
+        reply (the runtime never sends part of a response's results)."""
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         """Cancel the reply and make the history match what was heard: `played_ms` of `item_id`

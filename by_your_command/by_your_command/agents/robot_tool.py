@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from by_your_command.agents.inputs import CommandStatus
-from by_your_command.agents.provider import ToolSpec
+from by_your_command.agents.provider import ToolResult, ToolSpec
 
 TOOL_NAME = "robot_command"
 MAX_COMMAND_CHARS = 200
@@ -143,3 +143,61 @@ class PendingVerdicts:
 
     def __len__(self) -> int:
         return len(self._calls)
+
+
+@dataclass
+class _ResponseCalls:
+    session: int  # the provider session whose response made the calls (only it can take the results)
+    call_ids: list[str] = field(default_factory=list)
+    results: dict[str, str] = field(default_factory=dict)
+    done: bool = False  # the response ended: no more calls will come in it
+
+
+class ResponseResults:
+    """Tool results held per response until the response is done and each of its calls is
+    answered (or withdrawn), then sent together: the model is asked for one reply, not one per
+    call. Bad calls and unknown tools are answered here too, so their response waits the same."""
+
+    def __init__(self) -> None:
+        self._responses: dict[str, _ResponseCalls] = {}
+
+    def expect(self, session: int, response_id: str, call_id: str) -> None:
+        self._responses.setdefault(response_id, _ResponseCalls(session)).call_ids.append(call_id)
+
+    def answer(self, call_id: str, output: str) -> None:
+        for calls in self._responses.values():
+            if call_id in calls.call_ids:
+                calls.results[call_id] = output
+
+    def withdraw(self, call_id: str) -> None:
+        for calls in self._responses.values():
+            if call_id in calls.call_ids:
+                calls.call_ids.remove(call_id)
+                calls.results.pop(call_id, None)
+
+    def response_done(self, response_id: str) -> None:
+        calls = self._responses.get(response_id)
+        if calls is not None:
+            calls.done = True
+
+    def take_ready(self) -> list[tuple[int, tuple[ToolResult, ...]]]:
+        """(session, results) of every response now complete, in the order the calls came;
+        a response whose calls were all withdrawn has nothing to send and is dropped."""
+        ready = [
+            (response_id, calls)
+            for response_id, calls in self._responses.items()
+            if calls.done and all(call_id in calls.results for call_id in calls.call_ids)
+        ]
+        for response_id, _ in ready:
+            del self._responses[response_id]
+        return [
+            (calls.session, tuple(ToolResult(c, calls.results[c]) for c in calls.call_ids))
+            for _, calls in ready
+            if calls.call_ids
+        ]
+
+    def clear(self) -> None:
+        self._responses.clear()
+
+    def __len__(self) -> int:
+        return len(self._responses)

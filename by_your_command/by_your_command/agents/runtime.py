@@ -61,6 +61,7 @@ from by_your_command.agents.robot_tool import (
     TOOL_NAME,
     BadToolCall,
     PendingVerdicts,
+    ResponseResults,
     parse_command,
     result_json,
     verdicts_json,
@@ -71,7 +72,7 @@ from by_your_command.agents.session import (
     SendAudio,
     SendImage,
     SendText,
-    SendToolResult,
+    SendToolResults,
     Session,
     SessionEvent,
     SessionFailed,
@@ -151,6 +152,7 @@ class AgentRuntime:
         self._barge: PendingBargeIn | None = None
         self._barge_turn: Turn | None = None
         self._tools = PendingVerdicts()
+        self._results = ResponseResults()
         self._requests = 0  # command requests sent: their ids name this run and this count
         self._provider_backlog = 0  # session messages in the queue, not handled yet
         self._route_deferrals = 0
@@ -882,17 +884,18 @@ class AgentRuntime:
 
     async def _on_tool_call(self, session: Session, turn: Turn | None, call: ToolCall) -> None:
         self.counters.tool_calls += 1
+        self._results.expect(session.serial, call.response_id, call.call_id)
+        if turn is not None:
+            turn.tool_calls_open.add(call.call_id)
+            turn.tool_responses.add(call.response_id)
         if self.config.role is not AgentRole.TOOLS or call.name != TOOL_NAME:
-            session.send(SendToolResult(call.call_id, result_json(False, "", f"no tool named {call.name!r}")))
+            self._deliver_tool_result(call.call_id, result_json(False, "", f"no tool named {call.name!r}"))
             return
         try:
             command = parse_command(call.arguments)
         except BadToolCall as error:
-            session.send(SendToolResult(call.call_id, result_json(False, "", str(error))))
+            self._deliver_tool_result(call.call_id, result_json(False, "", str(error)))
             return
-        if turn is not None:
-            turn.tool_calls_open.add(call.call_id)
-            turn.tool_responses.add(call.response_id)
         self._requests += 1
         request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
         self._tools.add(
@@ -937,6 +940,9 @@ class AgentRuntime:
             )
             if turn is not None:
                 turn.tool_calls_open.discard(call_id)
+        for call_id in event.call_ids:
+            self._results.withdraw(call_id)  # its result is never sent
+        self._send_tool_results()
         if turn is not None and had_open and not turn.tool_calls_open:
             # the provider cut its own turn (the user spoke): nothing more will answer this one
             await self._finish_turn(turn, "cancelled")
@@ -962,15 +968,23 @@ class AgentRuntime:
             )
 
     def _deliver_tool_result(self, call_id: str, output: str) -> None:
-        if self._session is not None:
-            self._session.send(SendToolResult(call_id, output))
+        self._results.answer(call_id, output)
         turn = self._turn_out
         if turn is not None:
             turn.tool_calls_open.discard(call_id)
         self._last_activity = self._awaited_at = self._clock.now()  # the reply deadline restarts
+        self._send_tool_results()
+
+    def _send_tool_results(self) -> None:
+        """Each response's results once it is done and all are in: one request for a reply."""
+        for serial, results in self._results.take_ready():
+            if self._session is not None and self._session.serial == serial:
+                self._session.send(SendToolResults(results))
 
     async def _on_response_done(self, session: Session, turn: Turn | None, done: ResponseDone) -> None:
         self._add_usage(session, turn, done.usage)
+        self._results.response_done(done.response_id)
+        self._send_tool_results()
         reply = self._reply
         if reply is not None and reply.response_id == done.response_id:
             reply.generation_done = True
@@ -1054,6 +1068,7 @@ class AgentRuntime:
         self._session = None
         self._session_ending = ""
         self._recycle = ""
+        self._results.clear()  # results only its own responses could take
         billed = await session.close()
         record = SessionMetrics(
             self.config.agent_id,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from by_your_command.agents.clock import Clock
 from by_your_command.agents.events import ProviderError, ProviderEvent, Usage
-from by_your_command.agents.provider import Provider, ProviderFailure, SessionSetup
+from by_your_command.agents.provider import Provider, ProviderFailure, SessionSetup, ToolResult
 
 log = logging.getLogger(__name__)
 
@@ -45,9 +45,8 @@ class SendImage:
 
 
 @dataclass(frozen=True)
-class SendToolResult:
-    call_id: str
-    output: str
+class SendToolResults:
+    results: tuple[ToolResult, ...]
 
 
 @dataclass(frozen=True)
@@ -57,7 +56,7 @@ class Interrupt:
     played_ms: int
 
 
-Operation = SendAudio | EndOfTurn | SendText | SendImage | SendToolResult | Interrupt
+Operation = SendAudio | EndOfTurn | SendText | SendImage | SendToolResults | Interrupt
 
 
 @dataclass(frozen=True)
@@ -198,8 +197,8 @@ class Session:
             await provider.send_text(operation.text)
         elif isinstance(operation, SendImage):
             await provider.send_image(operation.jpeg)
-        elif isinstance(operation, SendToolResult):
-            await provider.send_tool_result(operation.call_id, operation.output)
+        elif isinstance(operation, SendToolResults):
+            await provider.send_tool_results(operation.results)
         else:
             await provider.interrupt(operation.response_id, operation.item_id, operation.played_ms)
 

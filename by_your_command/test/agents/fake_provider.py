@@ -1,7 +1,7 @@
 """A scripted provider for the runtime's tests: no sockets, virtual time, a record of every call.
 
 Replies are scripts: lists of (delay_s, event) steps that start when the runtime ends a turn
-(end_of_turn / send_text / send_tool_result). The factory holds the scripts, so a conversation
+(end_of_turn / send_text / send_tool_results). The factory holds the scripts, so a conversation
 continues across sessions the way a real one does.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 
 from by_your_command.agents.events import (
@@ -20,7 +20,7 @@ from by_your_command.agents.events import (
     ResponseStatus,
     Usage,
 )
-from by_your_command.agents.provider import ProviderClosed, SessionSetup
+from by_your_command.agents.provider import ProviderClosed, SessionSetup, ToolResult
 
 Step = tuple[float, ProviderEvent]
 Script = list[Step]
@@ -116,10 +116,11 @@ class FakeProvider:
         self._check()
         self.calls.append(("image", len(jpeg)))
 
-    async def send_tool_result(self, call_id: str, output: str) -> None:
+    async def send_tool_results(self, results: Sequence[ToolResult]) -> None:
         self._check()
-        self.calls.append(("tool_result", (call_id, output)))
-        self._answer()
+        for result in results:
+            self.calls.append(("tool_result", (result.call_id, result.output)))
+        self._answer()  # one reply for all of them
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         self._check()

@@ -162,3 +162,30 @@ def test_bad_tool_arguments_are_answered_not_published() -> None:
         assert call == "c1" and json.loads(output)["accepted"] is False
 
     run_virtual(scenario())
+
+
+def test_several_calls_in_one_response_are_answered_together_with_one_reply() -> None:
+    async def scenario() -> None:
+        config = AgentConfig(role=AgentRole.TOOLS, tool_verdict_timeout_s=3.0)
+        calls: Script = [
+            (0.1, ToolCall("r1", "c1", TOOL_NAME, json.dumps({"command": "pan@left"}))),
+            (0.0, ToolCall("r1", "c2", TOOL_NAME, "{not json")),
+            (0.0, ToolCall("r1", "c3", TOOL_NAME, json.dumps({"command": "lookup"}))),
+            (0.0, ResponseDone("r1", ResponseStatus.COMPLETED)),
+        ]
+        factory = FakeFactory(calls, said("r2", "Done."), said("r3", "Done again."))
+        processor = CommandProcessorConfig(min_interval_s=0.0).build()
+        async with running_agent(config, factory, processor) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(3.0)
+            await agent.stop()
+        results = _tool_results(factory.last.calls)
+        assert [call for _, (call, _) in results] == ["c1", "c2", "c3"]
+        assert [json.loads(output)["accepted"] for _, (_, output) in results] == [True, False, True]
+        names = factory.last.names()
+        first_result = names.index("tool_result")
+        assert names[first_result : first_result + 3] == ["tool_result"] * 3  # sent together
+        assert agent.port.of("text") == ["Done."]  # one reply for the three calls
+        assert [t.outcome for t in agent.port.turns()] == ["completed"]
+
+    run_virtual(scenario())

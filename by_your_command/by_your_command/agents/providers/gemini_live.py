@@ -8,9 +8,9 @@ truncate, the server cuts its own history where it stopped generating.
 The socket is read by one task for the whole session (`session.receive()` ends at every
 turnComplete, so it runs in a `while True`): a resumption handle sent after a turnComplete is
 never lost (python-genai#2527). Handles go to a `ResumptionHandles` store shared by the providers
-of one agent; the next session resumes with the newest one when the runtime carries a
-conversation (non-empty history), and falls back to a fresh session plus text context when the
-server refuses the resume.
+of one agent; the next session resumes with the newest one only when it continues the same
+conversation (`SessionSetup.conversation_id`, and a non-empty history), and falls back to a fresh
+session plus text context when the server refuses the resume.
 
 Endpoint, API version and CA file come from config, else the SDK's own environment variables
 (GOOGLE_GEMINI_BASE_URL, GOOGLE_GENAI_API_VERSION, SSL_CERT_FILE); the key from the constructor
@@ -41,6 +41,7 @@ from by_your_command.agents.provider import (
     ProviderFailure,
     Role,
     SessionSetup,
+    ToolResult,
     ToolSpec,
 )
 from by_your_command.agents.providers.event_stream import EventStream
@@ -134,6 +135,7 @@ class GeminiLiveProvider:
         self._in_activity = False  # between our activityStart and activityEnd
         self._turn_audio_bytes = 0
         self.resumed = False  # this connection continues an earlier one (the server kept history)
+        self._conversation_id = ""  # the runtime's conversation this session belongs to
 
     # ---- session ----------------------------------------------------------------------------
     async def connect(self, setup: SessionSetup) -> None:
@@ -142,8 +144,11 @@ class GeminiLiveProvider:
         text_from_transcription = not setup.audio_out and self.config.text_replies == "transcription"
         self._translator = EventTranslator(setup.audio_out, text_from_transcription)
         client = self._client()
-        # Resume only a conversation the runtime carries on: an empty history is a new conversation.
-        handle = self._handles.usable() if self.config.resumption and setup.history else None
+        # Resume only the conversation this session continues (a reset starts a new one, and the
+        # store drops the old one's handle); an empty history has nothing to continue.
+        self._conversation_id = setup.conversation_id
+        handle = self._handles.usable(setup.conversation_id) if self.config.resumption else None
+        handle = handle if setup.history else None
         try:
             await self._open(client, setup, handle)
         except ProviderFailure as failure:
@@ -304,21 +309,25 @@ class GeminiLiveProvider:
         async with closing_on_failure(_SESSION):
             await session.send_realtime_input(video=types.Blob(data=jpeg, mime_type="image/jpeg"))
 
-    async def send_tool_result(self, call_id: str, output: str) -> None:
+    async def send_tool_results(self, results: Sequence[ToolResult]) -> None:
+        """One toolResponse with every call's result (the model answers them together)."""
         session = self._live()
-        if call_id in self._translator.cancelled_calls:
-            log.info("tool call %s was cancelled by the server: result dropped", call_id)
+        responses = []
+        for result in results:
+            if result.call_id in self._translator.cancelled_calls:
+                log.info("tool call %s was cancelled by the server: result dropped", result.call_id)
+                continue
+            try:
+                parsed = json.loads(result.output)
+            except ValueError:
+                parsed = None
+            content = parsed if isinstance(parsed, dict) else {"output": result.output}
+            name = self._translator.call_name(result.call_id) or ""
+            responses.append(types.FunctionResponse(id=result.call_id, name=name, response=content))
+        if not responses:
             return
-        try:
-            parsed = json.loads(output)
-        except ValueError:
-            parsed = None
-        result = parsed if isinstance(parsed, dict) else {"output": output}
-        response = types.FunctionResponse(
-            id=call_id, name=self._translator.call_name(call_id) or "", response=result
-        )
         async with closing_on_failure(_SESSION):
-            await session.send_tool_response(function_responses=[response])
+            await session.send_tool_response(function_responses=responses)
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         """activityStart: the server stops generating and keeps what it sent in its history (there
@@ -365,7 +374,7 @@ class GeminiLiveProvider:
     async def _on_message(self, message: types.LiveServerMessage) -> None:
         update = message.session_resumption_update
         if update is not None and update.resumable and update.new_handle:
-            self._handles.keep(update.new_handle)
+            self._handles.keep(update.new_handle, self._conversation_id)
         for event in self._translator.translate(message):
             await self._events.put(event)
 

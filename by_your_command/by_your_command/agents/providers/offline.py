@@ -21,7 +21,7 @@ import json
 import logging
 import uuid
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from typing import TypeVar
@@ -37,7 +37,7 @@ from by_your_command.agents.events import (
     ToolCall,
     UserTranscript,
 )
-from by_your_command.agents.provider import ProviderClosed, ProviderFailure, SessionSetup
+from by_your_command.agents.provider import ProviderClosed, ProviderFailure, SessionSetup, ToolResult
 from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.offline_config import OfflineConfig
 from by_your_command.agents.providers.offline_engine import Engine, LocalEngine
@@ -193,9 +193,10 @@ class OfflineProvider:
         self._live()
         self.stats.ignored_images += 1  # nothing here can look at it
 
-    async def send_tool_result(self, call_id: str, output: str) -> None:
+    async def send_tool_results(self, results: Sequence[ToolResult]) -> None:
         self._live()
-        self._jobs.put_nowait(_Verdict(self._calls.pop(call_id, ""), output))
+        for result in results:
+            self._jobs.put_nowait(_Verdict(self._calls.pop(result.call_id, ""), result.output))
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         self._live()

@@ -40,6 +40,7 @@ from by_your_command.agents.provider import (
     ProviderFailure,
     Role,
     SessionSetup,
+    ToolResult,
     ToolSpec,
 )
 from by_your_command.agents.providers.event_stream import EventStream
@@ -297,13 +298,16 @@ class OpenAIRealtimeProvider:
             while len(self._images) > self.config.max_images_in_context:
                 await connection.conversation.item.delete(item_id=self._images.popleft())
 
-    async def send_tool_result(self, call_id: str, output: str) -> None:
+    async def send_tool_results(self, results: Sequence[ToolResult]) -> None:
+        """Every output first, then one response.create: one reply for all of a response's calls."""
         connection = self._live()
         async with closing_on_failure(_SESSION):
-            await connection.conversation.item.create(
-                item={"type": "function_call_output", "call_id": call_id, "output": output}
-            )
-        await self._request_reply()
+            for result in results:
+                await connection.conversation.item.create(
+                    item={"type": "function_call_output", "call_id": result.call_id, "output": result.output}
+                )
+        if results:
+            await self._request_reply()
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         connection = self._live()

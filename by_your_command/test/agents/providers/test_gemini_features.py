@@ -22,7 +22,7 @@ from by_your_command.agents.events import (
     ToolCallCancelled,
 )
 from by_your_command.agents.inputs import PromptText, UtteranceChunk
-from by_your_command.agents.provider import SessionSetup
+from by_your_command.agents.provider import SessionSetup, ToolResult
 from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
 from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
 from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL
@@ -77,7 +77,7 @@ def test_a_scripted_cancellation_becomes_a_typed_event_and_the_result_is_never_s
             got = await events_until(provider, lambda e: isinstance(e, ToolCallCancelled))
             [call] = [e for e in got if isinstance(e, ToolCall)]
             assert got[-1] == ToolCallCancelled((call.call_id,))
-            await provider.send_tool_result(call.call_id, json.dumps({"accepted": True}))
+            await provider.send_tool_results([ToolResult(call.call_id, json.dumps({"accepted": True}))])
             await provider.send_text("still there?")  # the session goes on
             await events_until(provider, lambda e: isinstance(e, ResponseDone))
             assert emulator.received_of("toolResponse") == []

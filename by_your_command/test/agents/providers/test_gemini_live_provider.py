@@ -37,6 +37,7 @@ from by_your_command.agents.provider import (
     ProviderFailure,
     Role,
     SessionSetup,
+    ToolResult,
     ToolSpec,
 )
 from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
@@ -265,7 +266,9 @@ def test_tool_call_round_trip_continues_in_a_new_response() -> None:
         assert json.loads(calls[0].arguments) == {"command": "wave"}
         assert first[-1].response_id == calls[0].response_id  # the tool-calling response ends there
 
-        await provider.send_tool_result(calls[0].call_id, json.dumps({"accepted": True, "command": "wave"}))
+        await provider.send_tool_results(
+            [ToolResult(calls[0].call_id, json.dumps({"accepted": True, "command": "wave"}))]
+        )
         second = await take_until(events, is_done)
         assert [e.text for e in second if isinstance(e, AssistantTranscript) and e.final] == ["I waved."]
         assert second[-1].response_id != calls[0].response_id

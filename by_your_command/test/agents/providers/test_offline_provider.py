@@ -35,7 +35,7 @@ from by_your_command.agents.events import (
     UserTranscript,
 )
 from by_your_command.agents.inputs import UtteranceChunk
-from by_your_command.agents.provider import ProviderClosed, SessionSetup
+from by_your_command.agents.provider import ProviderClosed, SessionSetup, ToolResult
 from by_your_command.agents.providers.offline import OfflineProvider
 from by_your_command.agents.providers.offline_config import OfflineConfig
 from by_your_command.agents.providers.offline_engine import LocalEngine
@@ -193,7 +193,9 @@ def test_a_spoken_command_is_a_tool_call_and_the_accepted_verdict_is_acknowledge
         assert call.name == TOOL_NAME and json.loads(call.arguments) == {"command": "follow@me"}
         assert events[-1] == ResponseDone(call.response_id, ResponseStatus.COMPLETED)
 
-        await provider.send_tool_result(call.call_id, result_json(True, "follow@me", "behavior command"))
+        await provider.send_tool_results(
+            [ToolResult(call.call_id, result_json(True, "follow@me", "behavior command"))]
+        )
         reply = await until_done(provider)
         assert spoken_text(reply) == "Following you."
         rate = of(reply, AssistantAudio)[0].sample_rate
@@ -214,12 +216,14 @@ def test_a_refused_command_speaks_the_refusal(engine: LocalEngine) -> None:
         await provider.send_text("Reach, please!")
         [call] = of(await until_done(provider), ToolCall)
         assert json.loads(call.arguments) == {"command": "reach"}
-        await provider.send_tool_result(call.call_id, result_json(False, "reach", "'reach' is not allowed"))
+        await provider.send_tool_results(
+            [ToolResult(call.call_id, result_json(False, "reach", "'reach' is not allowed"))]
+        )
         reply = await until_done(provider)
         assert spoken_text(reply) == "I can't do that: 'reach' is not allowed."
         assert audio_of(reply)
         # A verdict nobody can read is a refusal too, and says so.
-        await provider.send_tool_result(call.call_id, "{not json")
+        await provider.send_tool_results([ToolResult(call.call_id, "{not json")])
         assert (
             spoken_text(await until_done(provider)) == "I can't do that: the robot's answer was unreadable."
         )

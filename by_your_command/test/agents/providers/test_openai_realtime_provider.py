@@ -33,6 +33,7 @@ from by_your_command.agents.provider import (
     ProviderFailure,
     Role,
     SessionSetup,
+    ToolResult,
     ToolSpec,
 )
 from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeConfig, OpenAIRealtimeProvider
@@ -186,7 +187,9 @@ def test_tool_call_round_trip_even_when_the_result_comes_before_response_done() 
         call = got[-1]
         assert isinstance(call, ToolCall)
         assert (call.name, json.loads(call.arguments)) == ("robot_command", {"command": "wave"})
-        await provider.send_tool_result(call.call_id, '{"accepted": true}')  # the reply is still running
+        await provider.send_tool_results(
+            [ToolResult(call.call_id, '{"accepted": true}')]
+        )  # the reply is still running
         got = await take_until(events, lambda e: isinstance(e, AssistantTranscript) and e.final)
         assert got[-1].text == "I waved."  # type: ignore[union-attr]
         got += await take_until(events, is_done)
@@ -199,6 +202,25 @@ def test_tool_call_round_trip_even_when_the_result_comes_before_response_done() 
         assert tools == [
             {"type": "function", "name": "robot_command", "description": "move", "parameters": {}}
         ]
+
+    script = Script(turns=(Turn(CallTool("robot_command", '{"command": "wave"}', Say("I waved."))),))
+    run(body, script, SessionSetup("x", tools=(ToolSpec("robot_command", "move", {}),)))
+
+
+def test_the_results_of_several_calls_go_first_then_one_request_for_a_reply() -> None:
+    async def body(emulator: OpenAIRealtimeEmulator, provider: OpenAIRealtimeProvider) -> None:
+        events = provider.events()
+        await provider.send_text("wave twice")
+        got = await take_until(events, is_done)  # the calling response ended
+        [call] = [event for event in got if isinstance(event, ToolCall)]
+        creates_before = len(sent(emulator, "response.create"))
+        await provider.send_tool_results(
+            [ToolResult(call.call_id, '{"accepted": true}'), ToolResult(call.call_id, '{"accepted": true}')]
+        )
+        await take_until(events, lambda e: isinstance(e, AssistantTranscript) and e.final)
+        kinds = [record.event["type"] for record in emulator.received][-3:]
+        assert kinds == ["conversation.item.create", "conversation.item.create", "response.create"]
+        assert len(sent(emulator, "response.create")) == creates_before + 1
 
     script = Script(turns=(Turn(CallTool("robot_command", '{"command": "wave"}', Say("I waved."))),))
     run(body, script, SessionSetup("x", tools=(ToolSpec("robot_command", "move", {}),)))
