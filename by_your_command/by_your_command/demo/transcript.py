@@ -128,9 +128,11 @@ class Narrator:
             return []
         if record.get("record") == "turn":
             self.tally.turns += 1
+            outcome = _text(record.get("outcome", "?"), 40)
+            why = _text(record.get("reason", ""), 160)  # a failure's reason: a report, not speech
             detail = (
                 f"first audio {_ms(record.get('first_audio_ms'))}, reply done {_ms(record.get('reply_ms'))}"
-                f" ({_text(record.get('outcome', '?'), 40)})"
+                f" ({outcome}{': ' + why if why else ''})"
             )
             return self._active(at, "latency", detail)
         if record.get("record") == "session":

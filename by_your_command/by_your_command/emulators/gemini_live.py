@@ -144,6 +144,11 @@ class HandleStore:
             self._handles.popitem(last=False)
         return handle
 
+    @property
+    def issued(self) -> list[str]:
+        """The handles still kept, oldest first (tests check which one a client resumed with)."""
+        return list(self._handles)
+
     def claim(self, handle: str) -> Conversation:
         entry = self._handles.get(handle)
         if entry is None or self._clock() - entry.issued_at > self._ttl_s:

@@ -46,6 +46,7 @@ OUTPUT_RATE = 24_000  # Gemini Live always answers 24 kHz mono s16le
 OUTPUT_MIME = f"audio/pcm;rate={OUTPUT_RATE}"
 AUDIO_TOKENS_PER_S = 25  # invented (real models count about 25-32 tokens per second of audio)
 IMAGE_MIME_TYPES = ("image/jpeg", "image/png", "image/webp")
+NO_SPEECH = "NEED_MORE_INPUT"  # the turnCompleteReason of an activity without speech (invented)
 SETUP_KEYS = {
     "model",
     "generationConfig",
@@ -143,6 +144,7 @@ class Conversation:
 class _UserInput:
     audio_ms: int = 0
     frames: int = 0
+    sound: bool = False  # any non-zero sample: digital silence holds no speech
 
 
 @dataclass
@@ -257,7 +259,10 @@ class GeminiLiveSession:
             self._need_manual("activityEnd")
             if self._activity is not None:
                 activity, self._activity = self._activity, None
-                await self._user_turn(None, activity)
+                if activity.sound:
+                    await self._user_turn(None, activity)
+                else:
+                    await self._no_speech()
         if bool_field(body, "audioStreamEnd", where) and not self.config.manual_activity:
             if self._pending.audio_ms:
                 await self._user_turn(None)
@@ -284,6 +289,7 @@ class GeminiLiveSession:
                 f"{INVALID_ARGUMENT} A user turn holds at most {self._limits.max_turn_audio_ms} ms."
             )
         target.audio_ms += ms
+        target.sound = target.sound or pcm.count(0) != len(pcm)
 
     def _frame(self, blob: JsonObject, mime: str) -> None:
         if mime not in IMAGE_MIME_TYPES:
@@ -352,6 +358,12 @@ class GeminiLiveSession:
         self.conversation.audio_ms += audio_ms
         self.conversation.frames += frames
         self._begin(turn)
+
+    async def _no_speech(self) -> None:
+        """An activity without speech (no audio, or digital silence): nothing to answer. The model
+        turn is a bare turnComplete saying so; no script turn is consumed. Invented: the reason
+        (a real server may send nothing at all)."""
+        await self._send({"serverContent": {"turnComplete": True, "turnCompleteReason": NO_SPEECH}})
 
     def _begin(self, turn: Turn) -> None:
         reply = _Reply(turn, prompt=self._prompt_usage())

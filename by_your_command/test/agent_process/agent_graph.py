@@ -20,7 +20,13 @@ from typing import Any
 
 import numpy as np
 import yaml
-from by_your_command_msgs.msg import AudioDataUtterance, CommandVerdict, Interruption, PlaybackStatus
+from by_your_command_msgs.msg import (
+    AudioDataUtterance,
+    CommandRequest,
+    CommandVerdict,
+    Interruption,
+    PlaybackStatus,
+)
 from byc_testing import REPO_ROOT, python_module, running_process, wait_for
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
@@ -49,6 +55,7 @@ BRIDGE_OUTPUTS = (
     "prompt_transcript",
     "response_text",
     "response_cmd",
+    "command_request",
     "interruption_signal",
     "agent_metrics",
 )
@@ -378,6 +385,7 @@ class GraphProbe:
         self.transcripts: list[String] = self._listen(String, "prompt_transcript")
         self.replies: list[String] = self._listen(String, "response_text")
         self.commands: list[String] = self._listen(String, "response_cmd")
+        self.requests: list[CommandRequest] = self._listen(CommandRequest, "command_request")
         self.verdicts: list[CommandVerdict] = self._listen(CommandVerdict, "command_status")
         self.interruptions: list[Interruption] = self._listen(Interruption, "interruption_signal")
         # Deep: the player reports every block, and a test thread busy on a loaded machine can leave

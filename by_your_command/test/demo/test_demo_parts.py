@@ -80,6 +80,17 @@ def test_lines_say_what_was_heard_said_routed_refused_and_measured() -> None:
                 101.4,
             )  # fmt: skip
         ),
+        *narrator.feed(
+            received(
+                "agent_metrics",
+                {
+                    "data": json.dumps(
+                        {"record": "turn", "reply_ms": 900, "outcome": "failed", "reason": "lost"}
+                    )
+                },
+                101.5,
+            )
+        ),
         *narrator.feed(received("attention_state", {"data": "asleep"}, 102.0)),
         *narrator.feed(received("attention_state", {"data": "asleep"}, 102.5)),  # no change: no line
         *narrator.feed(Lost("prompt_transcript", "text", 2, "the bridge dropped them", 103.0)),
@@ -92,13 +103,14 @@ def test_lines_say_what_was_heard_said_routed_refused_and_measured() -> None:
         '[    1.2 s] command    "fly" refused: unknown command',
         '[    1.3 s] robot      "Looking up."',
         "[    1.4 s] latency    first audio 240 ms, reply done 1310 ms (completed)",
+        "[    1.5 s] latency    first audio -, reply done 900 ms (failed: lost)",
         "[    2.0 s] attention  asleep",
         "[    3.0 s] lost       2 prompt_transcript message(s): the bridge dropped them",
         "[    4.0 s] lost       messages in flight: connection to the bridge lost",
     ]
     tally = narrator.tally
     assert tally.routed == [("lookup", "arm_preset")] and tally.refused == [("fly", "unknown command")]
-    assert (tally.heard, tally.replies, tally.turns, tally.lost) == (["look up"], ["Looking up."], 1, 2)
+    assert (tally.heard, tally.replies, tally.turns, tally.lost) == (["look up"], ["Looking up."], 2, 2)
 
 
 def test_the_demo_is_over_only_when_the_file_ended_and_the_last_reply_finished() -> None:

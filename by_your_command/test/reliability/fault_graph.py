@@ -151,5 +151,9 @@ def turn_records(probe: GraphProbe) -> list[dict[str, Any]]:
 
 
 def failures(probe: GraphProbe) -> list[str]:
-    """The agent's failed-turn reports on response_text."""
-    return [text for text in probe.texts(probe.replies) if re.match(r"\[[^\]]+\] turn \d+ failed: ", text)]
+    """The agent's failed-turn reports: its turn records' reasons (`turn N failed: why`)."""
+    return [
+        f"turn {r['turn']} {r['outcome']}: {r['reason']}"
+        for r in turn_records(probe)
+        if r["outcome"] in ("failed", "undelivered")
+    ]

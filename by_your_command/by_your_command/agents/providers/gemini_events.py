@@ -77,6 +77,14 @@ def _by_modality(details: list[types.ModalityTokenCount] | None) -> dict[str, in
     return counts
 
 
+def _refusal(content: types.LiveServerContent) -> str:
+    """Why the server ended a turn, when it says (`turnCompleteReason`: NEED_MORE_INPUT,
+    RESPONSE_REJECTED, a safety reason); "" when it does not. google-genai 2.33 may lack the field."""
+    reason = getattr(content, "turn_complete_reason", None)
+    name = str(getattr(reason, "value", reason) or "")
+    return "" if name in ("", "TURN_COMPLETE_REASON_UNSPECIFIED") else name
+
+
 def seconds_left(time_left: str | None) -> float:
     """A protobuf Duration in JSON ("5s", "0.5s") → seconds (0 when absent or unreadable)."""
     if not time_left:
@@ -136,7 +144,7 @@ class EventTranslator:
         if message.go_away is not None:
             out.append(SessionEnding("goAway", seconds_left(message.go_away.time_left)))
         if content is not None and content.turn_complete:
-            out += self._turn_complete()
+            out += self._turn_complete(_refusal(content))
         return out
 
     # ---- pieces -----------------------------------------------------------------------------
@@ -204,12 +212,15 @@ class EventTranslator:
         self.cancelled_calls.extend(withdrawn)
         return [ToolCallCancelled(withdrawn)] if withdrawn else []
 
-    def _turn_complete(self) -> list[ProviderEvent]:
+    def _turn_complete(self, refusal: str) -> list[ProviderEvent]:
         out = self._flush_heard()
         if self._response is not None:
             out += self._close(ResponseStatus.CANCELLED if self._interrupted else ResponseStatus.COMPLETED)
         elif self._after_tool_call:
             self._after_tool_call = False  # the tool-calling turn's own end: already reported
+        elif refusal:  # the model declined the turn (e.g. it held no speech): it failed, now
+            reason = f"the model gave no reply ({refusal})"
+            out.append(ResponseDone(new_response_id(), ResponseStatus.FAILED, self._take_usage(), reason))
         else:  # a turn without content still ends the user's turn
             out.append(ResponseDone(new_response_id(), ResponseStatus.COMPLETED, self._take_usage()))
         return out

@@ -289,7 +289,11 @@ class GeminiLiveProvider:
     async def end_of_turn(self) -> None:
         session = self._live()
         if not self._in_activity or not self._turn_audio_bytes:
-            await self._events.put(ProviderError("empty_turn", "utterance without audio not sent"))
+            # Nothing to answer: no reply will come, so the runtime must fail the turn now (it
+            # would wait for the reply timeout, then replay the same empty turn on a new session).
+            await self._events.put(
+                ProviderError("empty_turn", "utterance without audio not sent", refuses_turn=True)
+            )
             return
         async with closing_on_failure(_SESSION):
             await session.send_realtime_input(activity_end=types.ActivityEnd())

@@ -3,7 +3,9 @@ builds (a provider is one connection; resumption carries the conversation to the
 
 The server sends `sessionResumptionUpdate` at turn boundaries, often right after turnComplete
 (which is why the provider reads the socket continuously: python-genai#2527). Handles are valid
-for 2 h after the session ends; we count from receipt, with a margin. Never share one store
+for 2 h after the session ends; we count from receipt, with a margin. A handle belongs to the
+runtime's conversation that made it: a session of another conversation (after a reset) never
+resumes it, or the old server-side conversation would come back whole. Never share one store
 between two agents (a dual setup has two conversations).
 """
 
@@ -19,14 +21,19 @@ class ResumptionHandles:
     def __init__(self, ttl_s: float = HANDLE_TTL_S, clock: Callable[[], float] = time.monotonic) -> None:
         self._ttl_s, self._clock = ttl_s, clock
         self._handle: str | None = None
+        self._conversation = ""
         self._received_at = 0.0
 
-    def keep(self, handle: str) -> None:
-        """A newer resumable handle replaces the older one."""
-        self._handle, self._received_at = handle, self._clock()
+    def keep(self, handle: str, conversation_id: str) -> None:
+        """A newer resumable handle replaces the older one; it continues `conversation_id` only."""
+        self._handle, self._conversation, self._received_at = handle, conversation_id, self._clock()
 
-    def usable(self) -> str | None:
-        if self._handle is not None and self._clock() - self._received_at > self._ttl_s:
+    def usable(self, conversation_id: str) -> str | None:
+        """The handle to resume `conversation_id` with, if any. A handle of another conversation is
+        dropped: that conversation ended (a reset), and its server-side state must not come back."""
+        if self._handle is not None and (
+            conversation_id != self._conversation or self._clock() - self._received_at > self._ttl_s
+        ):
             self._handle = None
         return self._handle
 

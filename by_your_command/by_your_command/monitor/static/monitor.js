@@ -155,7 +155,8 @@
       if (record === null) return;
       const agent = text(record.agent_id, 40);
       if (record.record === "turn") {
-        const outcome = text(record.outcome, 40);
+        const why = text(record.reason, 160); // a failure's reason: a report, not the robot's speech
+        const outcome = why ? `${text(record.outcome, 40)}: ${why}` : text(record.outcome, 40);
         addLine("latency", `${agent}: first audio ${ms(record.first_audio_ms)}, reply done ${ms(record.reply_ms)} (${outcome})`);
       } else if (record.record === "session_open") {
         addLine("session", `${agent}: session ${isNumber(record.session) ? record.session : "?"} open`);

@@ -29,6 +29,7 @@ from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL
 from by_your_command.agents.runtime import AgentRuntime
 from by_your_command.emulators.gemini_live import GeminiLiveEmulator, start
 from by_your_command.emulators.gemini_script import CallTool, Say, Script, Turn
+from by_your_command.emulators.gemini_wire import field_value
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(90)]
 
@@ -161,6 +162,42 @@ def test_the_runtime_sends_no_result_for_a_cancelled_call_and_ends_the_turn() ->
             await until(lambda: [t.outcome for t in port.turns()] == ["cancelled", "completed"], "the answer")
             assert emulator.received_of("toolResponse") == []
             assert runtime.counters.commands_withheld == 0 and runtime.counters.tool_timeouts == 0
+        finally:
+            port.close()
+            await asyncio.wait_for(task, 30)
+            await emulator.stop()
+
+    asyncio.run(main())
+
+
+def test_a_turn_gemini_cannot_answer_fails_at_once_and_is_never_replayed() -> None:
+    """An utterance of digital silence (the model declines it: a bare turnComplete with a reason),
+    then an utterance without audio (the provider sends nothing): each fails now, on the same
+    session, long before the reply timeout, and the next question is answered."""
+
+    async def main() -> None:
+        emulator = await start(script=Script(turns=(Turn(Say("Yes?")),)))
+        config = AgentConfig(agent_id="talker", reply_timeout_s=600.0, pause_timeout_s=600.0)
+        port = FakePort()
+        runtime = AgentRuntime(
+            config, "You are a robot.", port, lambda: GeminiLiveProvider(settings(emulator), api_key=KEY)
+        )
+        task = asyncio.create_task(runtime.run())
+        try:
+            for sequence in range(3):  # 0.3 s of zeros: a gated microphone
+                port.push(UtteranceChunk(bytes(3200), 16000, 1, sequence, sequence == 2))
+            await until(lambda: [t.outcome for t in port.turns()] == ["failed"], "the silent turn failed")
+            port.push(UtteranceChunk(b"", 16000, 2, 0, True))
+            await until(lambda: [t.outcome for t in port.turns()] == ["failed"] * 2, "the empty turn failed")
+            for sequence in range(5):
+                port.push(UtteranceChunk(b"\x00\x01" * 1600, 16000, 3, sequence, sequence == 4))
+            await until(lambda: [t.outcome for t in port.turns()][-1:] == ["completed"], "the answer")
+            assert [t.outcome for t in port.turns()] == ["failed", "failed", "completed"]
+            assert len(emulator.handshakes) == 1  # no session was lost or recycled for them
+            ends = [
+                b for b in emulator.received_of("realtimeInput") if field_value(b, "activityEnd") is not None
+            ]
+            assert len(ends) == 2  # the silent turn once (never replayed), the question once
         finally:
             port.close()
             await asyncio.wait_for(task, 30)

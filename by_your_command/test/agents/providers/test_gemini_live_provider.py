@@ -13,6 +13,7 @@ import base64
 import json
 import logging
 import re
+import time
 from collections.abc import AsyncIterator, Callable, Coroutine
 from typing import Any
 
@@ -48,6 +49,7 @@ from by_your_command.emulators.gemini_script import CallTool, Say, Script, Turn
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 
 SETUP = SessionSetup(instructions="You are a robot.")
+CONVERSATION = "conversation-1"
 HISTORY = (HistoryTurn(Role.USER, "my name is Ada"), HistoryTurn(Role.ASSISTANT, "Hello Ada."))
 TINY_JPEG = bytes.fromhex("ffd8ffe000104a46494600010100000100010000ffd9")
 KEY = "test-key-1234567890"
@@ -177,6 +179,7 @@ def test_no_audio_is_sent_outside_an_activity_and_an_empty_turn_is_reported() ->
         await provider.end_of_turn()  # nothing was said
         error = await anext(events)
         assert isinstance(error, ProviderError) and error.code == "empty_turn"
+        assert error.refuses_turn and not error.fatal  # no reply will come: the runtime fails it now
         await voice_turn(provider, chunks=2)
         await voice_turn(provider, chunks=1)
         assert kinds(realtime(emulator)) == ["activityStart", "audio", "audio", "activityEnd"] + [
@@ -187,6 +190,20 @@ def test_no_audio_is_sent_outside_an_activity_and_an_empty_turn_is_reported() ->
         assert emulator.sessions[0].audio_outside_activity_ms == 0
 
     run(body)
+
+
+def test_a_turn_of_digital_silence_gets_no_reply_and_ends_failed_at_once() -> None:
+    async def body(emulator: GeminiLiveEmulator, provider: GeminiLiveProvider) -> None:
+        events = provider.events()
+        await provider.send_audio(bytes(640))  # 20 ms of zeros: a gated microphone
+        await provider.end_of_turn()
+        [done] = await take_until(events, is_done)
+        assert isinstance(done, ResponseDone) and done.status is ResponseStatus.FAILED
+        assert "NEED_MORE_INPUT" in done.reason
+        got = await voice_turn(provider)  # the session goes on; no scripted turn was used up
+        assert [e.text for e in got if isinstance(e, AssistantTranscript) and e.final] == ["Yes?"]
+
+    run(body, Script(turns=(Turn(Say("Yes?")),)))
 
 
 def test_text_turn_is_client_content_with_turn_complete() -> None:
@@ -332,9 +349,10 @@ def test_a_handle_sent_after_turn_complete_is_not_lost() -> None:
         # turnComplete, then the handle, then goAway: only a reader that goes on after receive()
         # ends (at turnComplete) sees the last two.
         await take_until(provider.events(), lambda e: isinstance(e, SessionEnding))
-        assert handles.usable() is not None
+        assert handles.usable(CONVERSATION) == emulator.handles.issued[-1]
 
-    run(body, Script(go_away_after_turns=1, go_away_time_left_s=60.0), handles=handles)
+    setup = SessionSetup("You are a robot.", conversation_id=CONVERSATION)
+    run(body, Script(go_away_after_turns=1, go_away_time_left_s=60.0), setup, handles=handles)
 
 
 def test_newest_handle_resumes_the_next_connection_with_history_kept() -> None:
@@ -343,17 +361,18 @@ def test_newest_handle_resumes_the_next_connection_with_history_kept() -> None:
         emulator = await start(script=Script(turns, go_away_after_turns=2, go_away_time_left_s=60.0))
         handles = ResumptionHandles()
         first = GeminiLiveProvider(settings(emulator), api_key=KEY, resumption=handles)
-        await first.connect(SETUP)
+        await first.connect(SessionSetup("You are a robot.", conversation_id=CONVERSATION))
         await first.send_text("first")
         await take_until(first.events(), is_done)
         await first.send_text("second")
         # The second turn's handle comes after its turnComplete and before the goAway.
         await take_until(first.events(), lambda e: isinstance(e, SessionEnding))
-        newest = handles.usable()
+        newest = handles.usable(CONVERSATION)
+        assert newest == emulator.handles.issued[-1]
         await first.close()  # the old socket is closed before resuming
 
         second = GeminiLiveProvider(settings(emulator), api_key=KEY, resumption=handles)
-        await second.connect(SessionSetup("You are a robot.", history=HISTORY))
+        await second.connect(SessionSetup("You are a robot.", history=HISTORY, conversation_id=CONVERSATION))
         try:
             await second.send_text("third")
             await take_until(second.events(), is_done)
@@ -374,29 +393,82 @@ def test_newest_handle_resumes_the_next_connection_with_history_kept() -> None:
 
 def test_a_refused_resume_falls_back_to_a_fresh_session_with_text_context() -> None:
     handles = ResumptionHandles()
-    handles.keep("stale-handle")
+    handles.keep("stale-handle", CONVERSATION)
 
     async def body(emulator: GeminiLiveEmulator, provider: GeminiLiveProvider) -> None:
         assert [closed.code for closed in emulator.closes] == [1007]
         assert setup_frame(emulator, 0)["sessionResumption"]["handle"] == "stale-handle"
         assert "handle" not in setup_frame(emulator, 1)["sessionResumption"]
-        assert provider.resumed is False and handles.usable() is None
+        assert provider.resumed is False and handles.usable(CONVERSATION) is None
         await provider.send_text("hi")
         await take_until(provider.events(), is_done)  # frames arrive in order: the history came first
         seeded = camel(emulator.received_of("clientContent", 1)[0])
         assert seeded["turns"][0]["parts"][0]["text"] == "my name is Ada"
 
-    run(body, Script(refuse_resume=True), SessionSetup("You are a robot.", history=HISTORY), handles)
+    setup = SessionSetup("You are a robot.", history=HISTORY, conversation_id=CONVERSATION)
+    run(body, Script(refuse_resume=True), setup, handles)
 
 
-def test_a_new_conversation_never_resumes() -> None:
+def test_a_session_without_history_never_resumes() -> None:
     handles = ResumptionHandles()
-    handles.keep("old-conversation")
+    handles.keep("old-conversation", "")
 
     async def body(emulator: GeminiLiveEmulator, provider: GeminiLiveProvider) -> None:
         assert "handle" not in setup_frame(emulator)["sessionResumption"]
 
-    run(body, handles=handles)  # SETUP has no history: a reset conversation
+    run(body, handles=handles)  # SETUP has no history: nothing to continue
+
+
+def test_a_session_of_another_conversation_never_resumes_and_the_old_handle_is_dropped() -> None:
+    """A reset mid-conversation: the next session carries the new conversation's words as history,
+    but resuming the old conversation's handle would bring its server-side state back whole."""
+
+    async def main() -> None:
+        emulator = await start(
+            script=Script(turns=(Turn(Say("One.")), Turn(Say("Two.")), Turn(Say("Three."))))
+        )
+        handles = ResumptionHandles()
+        try:
+            old = GeminiLiveProvider(settings(emulator), api_key=KEY, resumption=handles)
+            await old.connect(SessionSetup("You are a robot.", conversation_id="before-reset"))
+            await old.send_text("first")
+            await take_until(old.events(), is_done)
+            await until_handle(handles, "before-reset")
+            await old.close()
+
+            new = GeminiLiveProvider(settings(emulator), api_key=KEY, resumption=handles)
+            await new.connect(
+                SessionSetup("You are a robot.", history=HISTORY, conversation_id="after-reset")
+            )
+            assert handles.usable("before-reset") is None  # dropped, not kept for later
+            await new.send_text("second")
+            await take_until(new.events(), is_done)
+            await until_handle(handles, "after-reset")
+            await new.close()
+            assert new.resumed is False
+            assert "handle" not in setup_frame(emulator, 1)["sessionResumption"]
+            said = [text for _, text in emulator.sessions[1].conversation.transcript]
+            assert "first" not in said and said[0] == "my name is Ada"  # fresh, seeded with its own history
+
+            again = GeminiLiveProvider(settings(emulator), api_key=KEY, resumption=handles)
+            await again.connect(
+                SessionSetup("You are a robot.", history=HISTORY, conversation_id="after-reset")
+            )
+            await again.close()
+            assert again.resumed is True  # the new conversation's own handle is used
+        finally:
+            await emulator.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 30))
+
+
+async def until_handle(handles: ResumptionHandles, conversation_id: str) -> None:
+    """The handle comes after turnComplete: wait for it (a condition, never a fixed time)."""
+    deadline = time.monotonic() + 20.0
+    while handles.usable(conversation_id) is None:
+        if time.monotonic() > deadline:
+            raise AssertionError(f"no resumption handle for {conversation_id}")
+        await asyncio.sleep(0.01)
 
 
 def test_deadline_close_mid_reply_ends_the_reply_and_the_session() -> None:
