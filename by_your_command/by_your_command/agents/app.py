@@ -26,6 +26,7 @@ from by_your_command.bridge.client import BridgeClient, ClientOptions
 from by_your_command.prompts.library import PromptFileError, load_prompt_library
 from by_your_command.prompts.locate import ConfigFileNotFound
 from by_your_command.prompts.located_yaml import ConfigError
+from by_your_command.stop_signals import StopRequests, StopVerdict
 
 log = logging.getLogger(__name__)
 
@@ -115,15 +116,18 @@ def run_agent_process(prepared: PreparedAgent) -> int:
 
 @contextlib.contextmanager
 def _stop_on_signals(stop: Callable[[], None]) -> Iterator[None]:
-    """The first SIGINT/SIGTERM stops the runtime cleanly; a second one exits at once."""
+    """The first SIGINT/SIGTERM stops the runtime cleanly; a second one exits at once, except the
+    copy of one Ctrl-C that the terminal and a launcher both send (stop_signals.py)."""
     loop = asyncio.get_running_loop()
-    received: list[int] = []
+    requests = StopRequests()
 
     def on_signal(signum: int) -> None:
-        received.append(signum)
-        if len(received) > 1:
+        verdict = requests.receive(signum)
+        if verdict is StopVerdict.EXIT_NOW:
             log.warning("second signal: exiting without closing the session")
             os._exit(128 + signum)
+        if verdict is StopVerdict.SAME_STOP:
+            return  # the same Ctrl-C, sent by the terminal and by launch
         log.info("%s: stopping", signal.Signals(signum).name)
         stop()
 

@@ -45,7 +45,9 @@ class GraphOptions:
     cmd_model: str = _option("", "dual profiles: the command agent's model; empty = its config file's")
     voice: str = _option("", "the speaking agent's voice; empty = its config file's")
     pause_timeout: float = _option(2.0, "seconds of quiet before a cloud session is closed (cost)")
-    agent_config_dir: str = _option("", "empty = the installed config/; else agent configs come from here")
+    agent_config_dir: str = _option(
+        "", "empty = agent configs are searched like every config file; else taken from this directory only"
+    )
     # node name -> parameter -> value, applied over the config files (`--set node.param=value`)
     parameters: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 

@@ -20,6 +20,8 @@ from rclpy.qos import QoSReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
+from by_your_command.stop_signals import StopRequests, StopVerdict
+
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SPIN_STOP_TIMEOUT_S = 5.0  # a callback still running after this is abandoned (logged)
 ACK_TIMEOUT_S = 2.0  # total wait for subscribers to acknowledge the last reliable messages
@@ -28,21 +30,31 @@ EXIT_FAILED = 1
 _log = get_logger("run_node")
 
 
+def _say(text: str) -> None:
+    """Written from a signal handler: plain stderr, not the rcl logger."""
+    sys.stderr.write(f"run_node: {text}\n")
+    sys.stderr.flush()
+
+
 class _StopRequest:
     """Why and when the main thread should stop waiting: a signal or a dead executor thread."""
 
     def __init__(self) -> None:
         self.event = threading.Event()
-        self.signals = 0
+        self.requests = StopRequests()
         self.failure: BaseException | None = None
 
     def on_signal(self, signum: int, _frame: FrameType | None) -> None:
-        self.signals += 1
-        if self.signals > 1:
+        name = signal.Signals(signum).name
+        verdict = self.requests.receive(signum)
+        if verdict is StopVerdict.EXIT_NOW:
             # The graceful path is stuck (a hook, a callback, DDS): the user insists.
-            sys.stderr.write(f"run_node: second {signal.Signals(signum).name}: exiting now\n")
-            sys.stderr.flush()
+            _say(f"second {name}: exiting now")
             os._exit(128 + signum)
+        if verdict is StopVerdict.SAME_STOP:
+            _say(f"{name} again right away (the same Ctrl-C, sent twice): still stopping in order")
+            return
+        _say(f"{name}: stopping")
         self.event.set()
 
     def on_failure(self, error: BaseException) -> None:
@@ -159,8 +171,9 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None, t
     3. reliable publishers wait (at most ACK_TIMEOUT_S in total) until subscribers acknowledged;
     4. the node is destroyed (`destroy_node` may still publish and close devices), rclpy shut down.
 
-    A second signal exits at once (status 128 + signal). An exception escaping a callback is
-    logged and stops the node the same way, then the process exits with status 1.
+    A second signal exits at once (status 128 + signal), except a SIGINT repeated right away: that
+    is one Ctrl-C sent twice (terminal and launcher; by_your_command.stop_signals). An exception
+    escaping a callback is logged and stops the node the same way, then the process exits with 1.
     """
     rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()
@@ -186,6 +199,9 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None, t
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        _restore_handlers(previous)
+        if not stop.requests.stopping:
+            _restore_handlers(previous)
+        # else ours stay: a copy of the Ctrl-C may still come (launch relays it), and the default
+        # handler would turn it into a KeyboardInterrupt while the process exits
     if not clean:
         raise SystemExit(EXIT_FAILED)

@@ -6,18 +6,21 @@ import os
 import re
 import signal
 import subprocess
+import sys
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
+from pathlib import Path
 
 from byc_testing import python_module, running_process, wait_for
 
-_STARTED = re.compile(r"^\[byc up\s*\] started (\S+) \(pid (\d+)\)")
-
 
 class UpProcess:
-    def __init__(self, process: subprocess.Popen[str]) -> None:
+    """`byc up`, or anything that logs `[<self_name>] started <name> (pid <pid>)` for each child."""
+
+    def __init__(self, process: subprocess.Popen[str], self_name: str = "byc up") -> None:
         self.process = process
+        self._started = re.compile(rf"^\[{re.escape(self_name)}\s*\] started (\S+) \(pid (\d+)\)")
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
@@ -33,7 +36,7 @@ class UpProcess:
 
     def children(self) -> dict[str, int]:
         """name -> pid of every process `byc up` said it started."""
-        return {m[1]: int(m[2]) for line in self.lines if (m := _STARTED.match(line))}
+        return {m[1]: int(m[2]) for line in self.lines if (m := self._started.match(line))}
 
     def lines_of(self, name: str) -> list[str]:
         return [line for line in self.lines if re.match(rf"^\[{re.escape(name)}\s*\] ", line)]
@@ -41,7 +44,7 @@ class UpProcess:
     def check_running(self) -> None:
         if self.process.poll() is not None:
             self._reader.join(5)
-            raise AssertionError(f"byc up exited with {self.process.returncode}:\n{self.output}")
+            raise AssertionError(f"{self.process.args} exited with {self.process.returncode}:\n{self.output}")
 
     def stop(self, signum: int = signal.SIGINT, timeout: float = 30) -> int:
         self.process.send_signal(signum)
@@ -81,3 +84,20 @@ def byc_up(*args: str) -> Iterator[UpProcess]:
             wait_for(
                 lambda: not any(map(pid_alive, up.children().values())), timeout=10, what="children gone"
             )
+
+
+@contextmanager
+def stand_in_launch(profile: str, *words: str) -> Iterator[UpProcess]:
+    """`ros2 launch by_your_command <profile>.launch.py <words>` played by launch_stand_in.py, in a
+    process group of its own with its children, as a terminal's foreground job is."""
+    script = str(Path(__file__).with_name("launch_stand_in.py"))
+    with running_process([sys.executable, script, profile, *words]) as process:
+        launch = UpProcess(process, self_name="launch")
+        try:
+            yield launch
+        finally:
+            children = launch.children()
+            if process.poll() is None or any(map(pid_alive, children.values())):
+                with suppress(ProcessLookupError):
+                    os.killpg(process.pid, signal.SIGKILL)  # the group: the launch and every child
+            wait_for(lambda: not any(map(pid_alive, children.values())), timeout=10, what="children gone")

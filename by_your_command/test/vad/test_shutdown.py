@@ -117,6 +117,51 @@ def test_a_second_signal_ends_a_stop_that_hangs(ros_namespace: str) -> None:
         assert "second SIGTERM" in output(stuck)
 
 
+def stuck_node(namespace: str, duplicate_window_s: float) -> list[str]:
+    """The stuck node, with stop_signals' window for a repeated SIGINT set (no timing in the test)."""
+    code = (
+        "import runpy, sys\n"
+        "import by_your_command.stop_signals as stop_signals\n"
+        "stop_signals.DUPLICATE_WINDOW_S = float(sys.argv[1])\n"
+        "sys.argv = sys.argv[2:]\n"
+        "runpy.run_path(sys.argv[0], run_name='__main__')\n"
+    )
+    return [
+        sys.executable,
+        "-c",
+        code,
+        str(duplicate_window_s),
+        str(RUNTIME_NODES),
+        "stuck",
+        *ros_args(namespace),
+    ]
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    "window_s, then, status",
+    [(3600.0, signal.SIGTERM, 128 + signal.SIGTERM), (0.0, None, 128 + signal.SIGINT)],
+    ids=["copy-of-the-ctrl-c", "ctrl-c-again-later"],
+)
+def test_a_sigint_repeated_at_once_is_the_same_stop(
+    ros_namespace: str, window_s: float, then: int | None, status: int
+) -> None:
+    """Under `ros2 launch`, one Ctrl-C arrives twice (the terminal's, then launch's): the copy must
+    not end the orderly stop; launch's SIGTERM escalation, or a Ctrl-C after the window, still does."""
+    with probe_node(ros_namespace) as probe, running_process(stuck_node(ros_namespace, window_s)) as stuck:
+        states = probe.listen(String, "runtime_state", LATCHED)
+        spin_until(probe, lambda: states and states[-1].data == "running", stuck, "the node to run")
+        stuck.send_signal(signal.SIGINT)
+        spin_until(probe, lambda: states[-1].data == "stopping", stuck, "before_shutdown to start")
+        stuck.send_signal(signal.SIGINT)
+        if then is not None:
+            stuck.send_signal(then)  # handled after the SIGINT: the lower signal number goes first
+        spin_until(probe, lambda: exited(stuck), None, "the process to exit")
+        text = output(stuck)
+        assert stuck.returncode == status, text
+        assert ("SIGINT again right away" in text) == (then is not None), text
+
+
 @pytest.mark.ros
 def test_an_exception_in_a_callback_ends_the_process_with_an_error(ros_namespace: str) -> None:
     command = [sys.executable, str(RUNTIME_NODES), "crash", *ros_args(ros_namespace)]
