@@ -22,6 +22,7 @@ class TurnMetrics:
     usage: Usage = field(default_factory=Usage)
     provider: str = ""  # Provider.name (monitors price the tokens per provider)
     reason: str = ""  # why it failed or was not delivered (a report: never said as the robot's words)
+    stream_id: str = ""  # the reply's last stream (its playback_status says when it stopped playing)
 
     def as_dict(self) -> dict[str, Any]:
         return {"record": "turn", **_flatten(self)}

@@ -617,6 +617,7 @@ class AgentRuntime:
             turn.usage,
             self._session.provider.name if self._session is not None else "",
             why,
+            self._reply_stream(turn),
         )
         log.log(
             logging.WARNING if why else logging.INFO,
@@ -632,6 +633,13 @@ class AgentRuntime:
             turn.usage.output_tokens,
         )
         self._publish("metrics", partial(self._port.publish_metrics, record))
+
+    def _reply_stream(self, turn: Turn) -> str:
+        """The stream now playing the turn's reply (after any resume), "" if none was published."""
+        reply = self._reply
+        if reply is None or reply.turn != turn.number or reply.stream_started_at is None:
+            return ""
+        return reply.stream_id
 
     async def _fail_turn(self, turn: Turn, why: str) -> None:
         self.counters.turns_failed += 1

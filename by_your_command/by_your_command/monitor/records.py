@@ -7,13 +7,14 @@ not what an agent publishes raises `BadRecord` (counted by the summary, never a 
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from typing import Any
 
 MAX_RECORD_CHARS = 65_536  # an agent's record is a few hundred characters
 MAX_NAME_CHARS = 64
 MAX_REASON_CHARS = 200
+MAX_STREAM_ID_CHARS = 200  # a reply's audio stream id (matched whole against playback_status, never cut)
+MAX_DEPTH = 8  # nested objects and lists (an agent's record has 2)
 MAX_COUNT = 10**12  # tokens, turns, serials: far above anything real, far below float trouble
 
 
@@ -57,8 +58,10 @@ class TurnRecord:
     turn: int
     outcome: str
     first_audio_ms: float | None
-    reply_ms: float
+    reply_ms: float  # end of user speech → reply generated (not played: playback_status says that)
     tokens: Tokens
+    reason: str = ""  # why it failed or was not delivered (optional: older agents send none)
+    stream_id: str = ""  # the reply's response_voice stream, when the agent names it (optional)
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,8 @@ def parse_record(text: str) -> Record:
         raise BadRecord(f"not JSON: {str(error)[:80]}") from None
     if not isinstance(data, dict):
         raise BadRecord("not a JSON object")
+    if _too_deep(data, 1):
+        raise BadRecord(f"nested deeper than {MAX_DEPTH} levels")
     kind = data.get("record")
     agent_id = _name(data, "agent_id", required=True)
     provider = _name(data, "provider", required=False)
@@ -118,6 +123,8 @@ def parse_record(text: str) -> Record:
             _millis(data, "first_audio_ms", optional=True),
             _millis(data, "reply_ms", optional=False) or 0.0,
             tokens,
+            _optional_text(data, "reason", MAX_REASON_CHARS),
+            _stream_id(data),
         )
     if kind == "session":
         return SessionRecord(
@@ -136,6 +143,16 @@ def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a number")
 
 
+def _too_deep(value: Any, depth: int) -> bool:
+    """A fixed limit the page applies too (json's own RecursionError depends on the stack)."""
+    if not isinstance(value, (dict, list)):
+        return False
+    if depth > MAX_DEPTH:
+        return True
+    children = value.values() if isinstance(value, dict) else value
+    return any(_too_deep(child, depth + 1) for child in children)
+
+
 def _name(data: dict[str, Any], key: str, required: bool) -> str:
     value = data.get(key, "")
     if not isinstance(value, str) or (required and not value.strip()):
@@ -150,6 +167,19 @@ def _text(data: dict[str, Any], key: str, limit: int) -> str:
     return " ".join(value.split())[:limit]
 
 
+def _optional_text(data: dict[str, Any], key: str, limit: int) -> str:
+    return _text(data, key, limit) if data.get(key) is not None else ""
+
+
+def _stream_id(data: dict[str, Any]) -> str:
+    value = data.get("stream_id")
+    if value is None:
+        return ""
+    if not isinstance(value, str) or len(value) > MAX_STREAM_ID_CHARS:
+        raise BadRecord(f"stream_id: expected a string of at most {MAX_STREAM_ID_CHARS} characters")
+    return value
+
+
 def _count(data: dict[str, Any], key: str) -> int:
     value = data.get(key)
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_COUNT:
@@ -161,10 +191,10 @@ def _number(data: dict[str, Any], key: str) -> float:
     value = data.get(key)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise BadRecord(f"{key}: expected a number")
-    number = float(value)
-    if not math.isfinite(number) or not 0 <= number <= MAX_COUNT:
+    # The range before float() (which raises on a 400-digit integer); NaN fails any comparison.
+    if not 0 <= value <= MAX_COUNT:
         raise BadRecord(f"{key}: expected a number 0..{MAX_COUNT}")
-    return number
+    return float(value)
 
 
 def _millis(data: dict[str, Any], key: str, optional: bool) -> float | None:

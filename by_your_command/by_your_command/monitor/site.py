@@ -17,6 +17,7 @@ PAGE_PATHS = ("/", "/monitor")  # the page links its files relatively: no traili
 CONFIG_PATH = "/monitor-config.json"
 _ASSETS = {
     "/monitor.js": ("monitor.js", "text/javascript; charset=utf-8"),
+    "/records.js": ("records.js", "text/javascript; charset=utf-8"),
     "/monitor.css": ("monitor.css", "text/css; charset=utf-8"),
 }
 

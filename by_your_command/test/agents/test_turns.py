@@ -40,6 +40,7 @@ def test_voice_turn_streams_resampled_audio_then_commits_and_publishes_one_strea
         assert agent.port.of("text") == ["hello there"]
         [turn] = agent.port.turns()
         assert turn.outcome == "completed" and turn.turn_kind == "voice"
+        assert turn.stream_id == agent.port.streams()[0]  # monitors tie its playback's end to it
         assert turn.first_audio_ms == pytest.approx(300.0, abs=1.0)  # end marker → first reply audio
         assert turn.usage.output_audio_tokens == 10
 

@@ -86,7 +86,15 @@ class LiveBridge:
 
     def restart(self) -> None:
         """Stop the server (every client disconnected) and start a new one on the same port."""
+        self.stop()
+        self.start()
+
+    def stop(self) -> None:
+        """Every client disconnected; the port is free until `start()`."""
         self._run(self.server.stop())
+
+    def start(self) -> None:
+        """A new server on the same port (a stopped one comes back)."""
         self.server = self._start()
 
     def close(self) -> None:

@@ -164,6 +164,7 @@ def _follow_the_speech(browser: Browser, page: Page, graph: subprocess.Popen[str
             count(lines, "user") >= 3
             and count(lines, "robot") >= 1
             and count(lines, "latency") >= 1
+            and count(lines, "played", lambda t: "stopped talking" in t) >= 1  # from playback_status
             and count(lines, "command", lambda t: t.endswith(": accepted")) >= 1
             and ("attention", "asleep") in lines
             and ("attention", "awake") in lines[lines.index(("attention", "asleep")) :]

@@ -4,12 +4,17 @@ subscribes to, what it shows, what its buttons publish, escaping, the token, and
 from __future__ import annotations
 
 import json
+import re
+import socket
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 from browser_helpers import b64, jpeg, transcript, wait_page
 from byc_testing import wait_for
-from cdp import Browser
+from cdp import Browser, Page
 from live_bridge import NAMESPACE, live_bridge
 
 from by_your_command.monitor.cost import Prices
@@ -26,6 +31,7 @@ PAGE_TOPICS = {
     "voice_activity",
     "assistant_speaking",
     "interruption_signal",
+    "playback_status",
     "agent_metrics",
     "agent_summary",
     "detections",
@@ -38,6 +44,53 @@ def connected(page_state: str) -> str:
     return f"document.getElementById('connection').dataset.state === '{page_state}'"
 
 
+def shown(element_id: str) -> str:
+    return f"document.getElementById('{element_id}').getClientRects().length > 0"
+
+
+def stale(element_id: str) -> str:
+    return f"document.getElementById('{element_id}').dataset.stale === 'true'"
+
+
+def console_entries(browser: Browser, page: Page) -> list[str]:
+    """Everything the page's console got (browser messages, script logs, errors), as JSON text."""
+    browser.pump()
+    kinds = ("Log.entryAdded", "Runtime.consoleAPICalled", "Runtime.exceptionThrown")
+    return [
+        json.dumps(event["params"])
+        for event in browser.events
+        if event.get("sessionId") == page.session_id and event["method"] in kinds
+    ]
+
+
+@contextmanager
+def hanging_up_port(port: int) -> Iterator[list[int]]:
+    """Stands in for a bridge that is down: every connection is accepted and closed at once (so each
+    reconnect attempt is seen and fails). Yields the growing list of accepted connections."""
+    accepted: list[int] = []
+    listener = socket.socket()
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    listener.bind(("127.0.0.1", port))
+    listener.listen()
+
+    def serve() -> None:
+        while True:
+            try:
+                connection, _ = listener.accept()
+            except OSError:
+                return  # closed
+            accepted.append(1)
+            connection.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield accepted
+    finally:
+        listener.close()
+        thread.join(timeout=10)
+
+
 def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path) -> None:
     with live_bridge(token=TOKEN) as bridge:
         refused = browser.new_page()
@@ -46,6 +99,10 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
         page = browser.new_page()  # a tab of its own: its console must stay free of errors
         assert page.navigate(f"{bridge.url}/?token={TOKEN}") == 200
         wait_page(page, connected("connected"), what="the page's WebSocket (token passed on)")
+        # The token is read, then taken out of the address bar (bookmarks, screenshots, history).
+        assert page.evaluate("window.location.href") == f"{bridge.url}/"
+        # No camera frame yet (a profile without a camera): no empty camera panel.
+        assert not page.evaluate(shown("camera-panel"))
 
         # It subscribes to what it shows, and to no audio topic.
         expected = {f"{NAMESPACE}/{topic}" for topic in PAGE_TOPICS}
@@ -82,21 +139,57 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
             "reply_ms": 1310.0,
             "usage": {"input_audio_tokens": 1000, "output_audio_tokens": 2000},
         }
+        # Any client may publish on agent_metrics: what the bridge's summary refuses is not shown.
+        for forged in ({**turn, "session": -1}, {**turn, "reply_ms": "soon"}, {**turn, "turn": 1.5}):
+            bridge.deliver("agent_metrics", {"data": json.dumps({**forged, "agent_id": "forged"})})
         bridge.deliver("agent_metrics", {"data": json.dumps(turn)})
+        failed = {**turn, "turn": 2, "outcome": "failed", "first_audio_ms": None, "reason": "provider <lost>"}
+        bridge.deliver("agent_metrics", {"data": json.dumps(failed)})
         bridge.deliver("interruption_signal", {"stream_id": "robot-1-1", "reason": "barge_in"})
-        wait_for(lambda: len(transcript(page)) >= 6, timeout=30, what="six transcript lines")
+        wait_for(lambda: len(transcript(page)) >= 7, timeout=30, what="seven transcript lines")
         lines = transcript(page)
-        assert lines[:6] == [
+        assert lines[:7] == [
             ("user", '"look up"'),
             ("robot", '"<img src=x onerror="window.pwned=1">Robert\'); <b>bold</b>"'),
             ("command", f"lookup -> {NAMESPACE}/arm_preset: accepted"),
             ("command", '"fly away" refused: unknown command'),
-            ("latency", "robot: first audio 240 ms, reply done 1310 ms (completed)"),
+            ("latency", "robot: first audio 240 ms, reply generated 1310 ms (completed)"),
+            ("latency", "robot: first audio –, reply generated 1310 ms (failed: provider <lost>)"),
             ("interrupt", "robot-1-1 (barge_in)"),
         ], lines
         assert page.evaluate("document.querySelectorAll('#transcript img, #transcript b').length") == 0
         assert page.evaluate("window.pwned === undefined")
         assert page.evaluate("document.getElementById('interruptions').textContent") == "1"
+
+        # When the robot stopped talking: the player's playback_status, per reply.
+        def played_lines() -> list[str]:
+            return [line for kind, line in transcript(page) if kind == "played"]
+
+        playing = {"stream_id": "robot-1-1-3", "played_ms": 200, "speaking": True, "finished": False}
+        old = {"stream_id": "robot-0-0-9", "played_ms": 900, "speaking": False, "finished": True}
+        bridge.deliver("playback_status", old)  # the latched status of a reply the page never saw: no line
+        bridge.deliver("playback_status", playing)
+        bridge.deliver("playback_status", {**playing, "played_ms": 1040, "speaking": False, "finished": True})
+        bridge.deliver("playback_status", {**playing, "played_ms": 1040, "speaking": False, "finished": True})
+        cut = {"stream_id": "robot-1-1-4", "played_ms": 100, "speaking": True}
+        bridge.deliver("playback_status", cut)
+        bridge.deliver("playback_status", {**cut, "played_ms": 600, "speaking": False, "interrupted": True})
+        # An agent that names its reply's stream in the turn record: the end is tied to the turn.
+        named = {**turn, "turn": 5, "stream_id": "robot-1-1-5"}
+        bridge.deliver("agent_metrics", {"data": json.dumps(named)})
+        bridge.deliver("playback_status", {"stream_id": "robot-1-1-5", "played_ms": 2000, "finished": True})
+        wait_for(lambda: len(played_lines()) >= 3, timeout=30, what="three played lines")
+        played = played_lines()
+        assert played[:2] == [
+            "robot-1-1-3: the robot stopped talking (1.0 s of audio, finished)",
+            "robot-1-1-4: the robot stopped talking (0.6 s of audio, cut off)",
+        ], played
+        assert re.fullmatch(
+            r"robot turn 5: the robot stopped talking ≈\d+ ms after the user did "
+            r"\(2\.0 s of audio, finished\)",
+            played[2],
+        ), played
+        assert len(played) == 3, played
 
         # Robot state.
         bridge.deliver("attention_state", {"data": "asleep"})
@@ -120,6 +213,7 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
         assert "1000 / 2000" in row
 
         # Camera: the forwarded frame, with the detections drawn as boxes.
+        assert not page.evaluate(shown("camera-panel"))
         bridge.deliver(
             "detections",
             {
@@ -152,6 +246,7 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
             "Number(document.getElementById('camera-caption').dataset.frames) >= 1",
             what="a camera frame",
         )
+        assert page.evaluate(shown("camera-panel"))
         assert (
             page.evaluate("document.getElementById('detections').textContent")
             == "cup <i> 90 % [40, 60, 200, 180]"
@@ -174,6 +269,14 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
             "document.getElementById('prompt-form').requestSubmit()"
         )
         wait_for(lambda: len(bridge.graph.published) >= 5, timeout=30, what="five publishes")
+        # attention_state was last "asleep" (the buttons' publishes reached no VAD here): the prompt is
+        # sent (a wake phrase would still wake the robot), and the page says it will not be answered.
+        ignored = [line for kind, line in transcript(page) if kind == "ignored"]
+        assert ignored == [
+            '"what time is it" will not be answered: the robot is asleep: agents ignore prompts until it '
+            'wakes (Wake, or a wake phrase such as "wake up")'
+        ], ignored
+        assert "asleep" in page.evaluate("document.getElementById('action-status').textContent")
         assert bridge.graph.published == [
             (f"{NAMESPACE}/wake_cmd", {"data": False}),
             (f"{NAMESPACE}/wake_cmd", {"data": True}),
@@ -193,3 +296,46 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
         wait_page(page, "document.getElementById('attention').dataset.state === 'muted'")
         browser.pump()
         assert page.errors() == []  # no script error, no CSP violation
+
+
+def test_while_the_bridge_is_away_values_are_stale_and_the_token_is_never_printed(
+    browser: Browser, tmp_path: Path
+) -> None:
+    with live_bridge(token=TOKEN) as bridge:
+        page = browser.new_page()
+        assert page.navigate(f"{bridge.url}/?token={TOKEN}") == 200
+        wait_page(page, connected("connected"), what="connected")
+        wait_for(lambda: len(bridge.graph.subscribed) == len(PAGE_TOPICS), timeout=30, what="subscribed")
+        bridge.deliver("attention_state", {"data": "awake"})
+        wait_page(page, "document.getElementById('attention').dataset.state === 'awake'")
+        assert not page.evaluate(stale("attention"))
+
+        bridge.stop()
+        before = len(console_entries(browser, page))
+        with hanging_up_port(bridge.port) as attempts:
+            wait_page(page, connected("disconnected"), what="the page noticing the bridge left")
+            # Reconnect attempts that fail (each one is logged by the browser): none may show the token.
+            wait_for(
+                lambda: len(attempts) >= 3 and len(console_entries(browser, page)) - before >= 2,
+                timeout=60,
+                what="failed reconnect attempts",
+            )
+            printed = console_entries(browser, page)
+            assert printed[before:], "the browser logs failed attempts: this test needs them"
+            assert [entry for entry in printed if TOKEN in entry] == []
+            # Every live value is marked as the last known one, in words too.
+            for element in ("attention", "vad", "speaking", "interruptions", "agents-connected", "agents"):
+                assert page.evaluate(stale(element)), element
+            assert "last known" in page.evaluate("document.getElementById('connection').textContent")
+            marker = "getComputedStyle(document.getElementById('attention'), '::after').content"
+            assert page.evaluate(marker) == '" (stale)"'  # said in words, not only greyed
+            print(f"stale page screenshot: {page.screenshot(tmp_path / 'monitor_stale.png')}")
+
+        bridge.start()
+        wait_page(page, connected("connected"), timeout=60, what="the page reconnecting")
+        wait_page(page, f"!({stale('interruptions')})", what="the page's own count goes on")
+        assert page.evaluate(stale("attention"))  # until the bridge says it again
+        bridge.deliver("attention_state", {"data": "asleep"})
+        wait_page(page, "document.getElementById('attention').dataset.state === 'asleep'")
+        assert not page.evaluate(stale("attention"))
+        assert [entry for entry in console_entries(browser, page) if TOKEN in entry] == []

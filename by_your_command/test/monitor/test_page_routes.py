@@ -42,11 +42,15 @@ def test_the_page_is_served_on_loopback_without_a_token_with_strict_headers() ->
             assert headers["referrer-policy"] == "no-referrer"  # the URL may carry the token
         html = body.decode()
         # No inline code: every script is a file, no event-handler attributes, no style blocks.
-        assert re.findall(r"<script\b[^>]*>", html) == ['<script src="monitor.js" defer>']
+        assert re.findall(r"<script\b[^>]*>", html) == [
+            '<script src="records.js" defer>',
+            '<script src="monitor.js" defer>',
+        ]
         assert not re.search(r"\son[a-z]+\s*=", html) and "<style" not in html
-        status, headers, script = get(bridge, "/monitor.js")
-        assert (status, headers["content-type"]) == (200, "text/javascript; charset=utf-8")
-        assert b"innerHTML" not in script  # data reaches the page through textContent only
+        for script_path in ("/records.js", "/monitor.js"):
+            status, headers, script = get(bridge, script_path)
+            assert (status, headers["content-type"]) == (200, "text/javascript; charset=utf-8")
+            assert b"innerHTML" not in script  # data reaches the page through textContent only
         status, headers, settings = get(bridge, "/monitor-config.json")
         assert (status, headers["content-type"]) == (200, "application/json")
         shipped = yaml.safe_load((CONFIG_DIR / "monitor.yaml").read_text())
@@ -68,8 +72,11 @@ def test_with_a_token_the_page_and_its_settings_need_it() -> None:
         assert get(bridge, f"/monitor?token={TOKEN}")[0] == 200
         assert get(bridge, "/", {"Authorization": f"Bearer {TOKEN}"})[0] == 200
         assert get(bridge, f"/monitor-config.json?token={TOKEN}")[0] == 200
-        # The script and the style are the same public code for everyone, without robot data.
-        assert get(bridge, "/monitor.js")[0] == 200 and get(bridge, "/monitor.css")[0] == 200
+        # The page asks with a header: a failed request's URL (printed by the browser) holds no token.
+        assert get(bridge, "/monitor-config.json", {"Authorization": f"Bearer {TOKEN}"})[0] == 200
+        # The scripts and the style are the same public code for everyone, without robot data.
+        for public in ("/monitor.js", "/records.js", "/monitor.css"):
+            assert get(bridge, public)[0] == 200, public
         # Without the token an unknown path says nothing about what exists.
         assert get(bridge, "/secret")[0] == 401
         assert get(bridge, f"/secret?token={TOKEN}")[0] == 404

@@ -32,9 +32,16 @@ def test_a_site_refuses_bad_routes_and_oversized_files() -> None:
 
 def test_the_monitor_site_serves_a_fixed_set_and_only_code_is_public() -> None:
     site = monitor_site(MonitorConfig())
-    assert site.paths == ["/", "/monitor", "/monitor-config.json", "/monitor.css", "/monitor.js"]
+    assert site.paths == [
+        "/",
+        "/monitor",
+        "/monitor-config.json",
+        "/monitor.css",
+        "/monitor.js",
+        "/records.js",
+    ]
     public = {path for path in site.paths if (found := site.find(path)) is not None and found.public}
-    assert public == {"/monitor.css", "/monitor.js"}
+    assert public == {"/monitor.css", "/monitor.js", "/records.js"}
 
 
 @pytest.mark.parametrize(

@@ -4,13 +4,14 @@
 "use strict";
 
 (() => {
-  const TOKEN = new URLSearchParams(window.location.search).get("token") || "";
+  const TOKEN = takeTokenFromAddressBar();
   const DEFAULTS = { currency: "USD", page: { camera_interval_ms: 500, transcript_lines: 300, latency_turns: 50 } };
   const BACKOFF_INITIAL_MS = 500;
   const BACKOFF_MAX_MS = 10000;
   const STABLE_AFTER_MS = 5000; // a connection that lasted this long resets the backoff
   const MAX_TEXT = 500;
   const MAX_FRAME_CHARS = 8 * 1024 * 1024; // base64 of a 6 MB image: far above a forwarded frame
+  const MAX_TRACKED_STREAMS = 64; // replies followed from their turn record / first status to their end
 
   // topic -> [type, options]; every topic the page shows (none of them audio).
   const SUBSCRIPTIONS = {
@@ -21,6 +22,7 @@
     voice_activity: ["std_msgs/msg/Bool"],
     assistant_speaking: ["std_msgs/msg/Bool"],
     interruption_signal: ["by_your_command_msgs/msg/Interruption"],
+    playback_status: ["by_your_command_msgs/msg/PlaybackStatus"],
     agent_metrics: ["std_msgs/msg/String"],
     agent_summary: ["std_msgs/msg/String"],
     detections: ["std_msgs/msg/String"],
@@ -44,7 +46,22 @@
     decoding: false,
     pendingFrame: null,
     lastAttention: "",
+    failedAttempts: 0,
+    playing: new Map(), // stream_id -> true: replies seen playing whose end is still to come
+    turnsByStream: new Map(), // stream_id -> the turn record that named it (agents that send stream_id)
   };
+
+  // The token is read once and taken out of the address bar (and so out of bookmarks, screenshots
+  // and the history entry): it is kept in memory only, and never written to the console.
+  function takeTokenFromAddressBar() {
+    const url = new URL(window.location.href);
+    const token = url.searchParams.get("token") || "";
+    if (url.searchParams.has("token")) {
+      url.searchParams.delete("token");
+      window.history.replaceState(window.history.state, "", `${url.pathname}${url.search}${url.hash}`);
+    }
+    return token;
+  }
 
   // --- small helpers ------------------------------------------------------------------------
 
@@ -66,6 +83,22 @@
     const element = $(id);
     element.dataset.state = value;
     element.textContent = label;
+    fresh(id);
+  }
+
+  // While disconnected every live value is the last one known: marked, until a new one comes.
+  function markStale() {
+    for (const element of document.querySelectorAll("[data-live]")) element.dataset.stale = "true";
+  }
+
+  function fresh(...ids) {
+    for (const id of ids) delete $(id).dataset.stale;
+  }
+
+  function remember(map, key, value) {
+    map.delete(key);
+    map.set(key, value);
+    while (map.size > MAX_TRACKED_STREAMS) map.delete(map.keys().next().value);
   }
 
   function cell(row, value, className) {
@@ -147,22 +180,47 @@
     interruption_signal(msg) {
       state.interruptions += 1;
       $("interruptions").textContent = String(state.interruptions);
+      fresh("interruptions");
       const stream = text(msg.stream_id, 80) || "every reply so far";
       addLine("interrupt", `${stream} (${text(msg.reason, 40) || "no reason"})`);
     },
     agent_metrics(msg) {
-      const record = parseJsonField(msg);
+      // Checked by the same rules as the bridge's summary (records.js = monitor/records.py).
+      const record = typeof msg.data === "string" ? window.bycRecords.parseRecord(msg.data) : null;
       if (record === null) return;
       const agent = text(record.agent_id, 40);
       if (record.record === "turn") {
         const why = text(record.reason, 160); // a failure's reason: a report, not the robot's speech
         const outcome = why ? `${text(record.outcome, 40)}: ${why}` : text(record.outcome, 40);
-        addLine("latency", `${agent}: first audio ${ms(record.first_audio_ms)}, reply done ${ms(record.reply_ms)} (${outcome})`);
+        // reply_ms ends when the reply is generated, not played: playback_status tells that (below).
+        addLine("latency", `${agent}: first audio ${ms(record.first_audio_ms)}, reply generated ${ms(record.reply_ms)} (${outcome})`);
+        if (record.stream_id) remember(state.turnsByStream, record.stream_id, { agent, record, at: performance.now() });
       } else if (record.record === "session_open") {
-        addLine("session", `${agent}: session ${isNumber(record.session) ? record.session : "?"} open`);
-      } else if (record.record === "session") {
-        const billed = isNumber(record.billed_s) ? `${record.billed_s.toFixed(1)} s` : "?";
-        addLine("session", `${agent}: session closed after ${billed} billed (${text(record.close_reason, 120)})`);
+        addLine("session", `${agent}: session ${record.session} open`);
+      } else {
+        addLine("session", `${agent}: session closed after ${record.billed_s.toFixed(1)} s billed (${text(record.close_reason, 120)})`);
+      }
+    },
+    playback_status(msg) {
+      if (typeof msg.stream_id !== "string" || !msg.stream_id || msg.stream_id.length > 200) return;
+      const stream = msg.stream_id;
+      if (msg.finished !== true && msg.interrupted !== true) {
+        if (msg.speaking === true && !state.playing.has(stream)) remember(state.playing, stream, true);
+        return;
+      }
+      const turn = state.turnsByStream.get(stream);
+      // A reply this page never saw playing nor announced (the latched status of an old one): skip.
+      if (!state.playing.has(stream) && turn === undefined) return;
+      state.playing.delete(stream);
+      state.turnsByStream.delete(stream);
+      const how = msg.interrupted === true ? "cut off" : "finished";
+      const played = isNumber(msg.played_ms) ? `${(msg.played_ms / 1000).toFixed(1)} s of audio, ${how}` : how;
+      if (turn === undefined) {
+        addLine("played", `${text(stream, 80)}: the robot stopped talking (${played})`);
+      } else {
+        // Page arrival times of the record and of this status: the same bridge carried both.
+        const afterUser = turn.record.reply_ms + (performance.now() - turn.at);
+        addLine("played", `${turn.agent} turn ${turn.record.turn}: the robot stopped talking ≈${ms(afterUser)} after the user did (${played})`);
       }
     },
     agent_summary(msg) {
@@ -172,6 +230,8 @@
     detections(msg) {
       const data = parseJsonField(msg);
       if (data === null || !Array.isArray(data.detections)) return;
+      showCameraPanel();
+      fresh("detections");
       state.detections = data;
       showDetections(data);
       drawOverlay();
@@ -187,6 +247,7 @@
   // --- agents panel -------------------------------------------------------------------------
 
   function showSummary(summary) {
+    fresh("agents-connected", "agents", "providers", "total-cost");
     const currency = text(summary.currency, 8) || state.settings.currency;
     const connected = Number.isInteger(summary.agents_connected) ? summary.agents_connected : "?";
     const invalid = Number.isInteger(summary.invalid_records) && summary.invalid_records > 0
@@ -236,6 +297,13 @@
 
   let lastBitmap = null;
 
+  // Hidden until a frame or a detection comes: a profile without a camera gives its room to the
+  // transcript instead of an empty black box.
+  function showCameraPanel() {
+    $("camera-panel").hidden = false;
+    document.querySelector("main").dataset.camera = "shown";
+  }
+
   async function decodeNextFrame() {
     state.decoding = true;
     while (state.pendingFrame !== null) {
@@ -246,6 +314,8 @@
         if (lastBitmap !== null) lastBitmap.close();
         lastBitmap = bitmap;
         state.frames += 1;
+        showCameraPanel();
+        fresh("camera", "camera-caption");
         const canvas = $("camera");
         canvas.width = bitmap.width;
         canvas.height = bitmap.height;
@@ -298,6 +368,10 @@
   }
 
   // --- the connection -----------------------------------------------------------------------
+  // A failed WebSocket handshake makes the browser print its URL, which holds the token, to the
+  // console. So every attempt first asks for the settings over HTTP, with the token in a header (a
+  // failed request prints only "monitor-config.json"), and opens the WebSocket only once the
+  // bridge answered.
 
   function send(message) {
     if (state.socket === null || state.socket.readyState !== WebSocket.OPEN) return false;
@@ -307,7 +381,9 @@
 
   function onOpen() {
     state.openedAt = Date.now();
+    state.failedAttempts = 0;
     setState("connection", "connected", "connected");
+    fresh("interruptions"); // this page's own count: it goes on counting
     for (const [topic, [type, options]] of Object.entries(SUBSCRIPTIONS)) {
       const request = { op: "subscribe", id: `sub:${topic}`, topic, type, ...(options || {}) };
       if (topic === "camera_forwarded") request.throttle_rate = state.settings.page.camera_interval_ms;
@@ -344,37 +420,92 @@
     }
   }
 
-  function onClose() {
+  function retryLater(why) {
     state.socket = null;
     if (state.openedAt && Date.now() - state.openedAt > STABLE_AFTER_MS) state.backoffMs = BACKOFF_INITIAL_MS;
+    state.openedAt = 0; // set when a socket opens: a refused attempt must not reset the backoff
+    state.failedAttempts += 1;
     const wait = Math.round(state.backoffMs * (0.5 + Math.random() / 2));
     state.backoffMs = Math.min(state.backoffMs * 2, BACKOFF_MAX_MS);
-    setState("connection", "disconnected", `disconnected; retrying in ${(wait / 1000).toFixed(1)} s`);
+    markStale();
+    setState("connection", "disconnected", `${why}; retrying in ${(wait / 1000).toFixed(1)} s; values shown are the last known`);
+    $("connection").dataset.failedAttempts = String(state.failedAttempts);
     window.setTimeout(connect, wait);
   }
 
-  function connect() {
-    const scheme = window.location.protocol === "https:" ? "wss://" : "ws://";
-    const query = TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : "";
+  function authorization() {
+    return TOKEN ? { Authorization: `Bearer ${TOKEN}` } : {};
+  }
+
+  // The bridge's answer for the settings: true when it is up and takes the token.
+  async function loadSettings() {
+    let response;
+    try {
+      response = await fetch("monitor-config.json", { cache: "no-store", headers: authorization() });
+    } catch (error) {
+      return "the bridge does not answer";
+    }
+    if (response.status === 401) return "the bridge refused this page's token (open the page's URL with ?token= again)";
+    if (!response.ok) return `the bridge answered HTTP ${response.status}`;
+    try {
+      applySettings(await response.json());
+    } catch (error) {
+      $("action-status").textContent = "settings not readable; using defaults";
+    }
+    return "";
+  }
+
+  function applySettings(settings) {
+    const page = { ...DEFAULTS.page };
+    for (const key of Object.keys(page)) {
+      const value = settings && settings.page ? settings.page[key] : undefined;
+      if (Number.isInteger(value) && value > 0) page[key] = value;
+    }
+    state.settings = { currency: text(settings && settings.currency, 8) || DEFAULTS.currency, page };
+  }
+
+  async function connect() {
     setState("connection", "connecting", "connecting…");
+    const refusal = await loadSettings();
+    if (refusal) {
+      retryLater(refusal);
+      return;
+    }
+    const scheme = window.location.protocol === "https:" ? "wss://" : "ws://";
+    const query = TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : ""; // browsers cannot set a header here
     let socket;
     try {
       socket = new WebSocket(`${scheme}${window.location.host}/${query}`);
     } catch (error) {
-      onClose();
+      retryLater("the connection could not be opened");
       return;
     }
-    state.openedAt = 0; // set when it opens: a refused attempt must not reset the backoff
     state.socket = socket;
     socket.addEventListener("open", onOpen);
     socket.addEventListener("message", onMessage);
-    socket.addEventListener("close", onClose);
+    socket.addEventListener("close", () => retryLater("disconnected"));
   }
 
   // --- controls -----------------------------------------------------------------------------
 
   function publish(topic, msg, done) {
-    $("action-status").textContent = send({ op: "publish", topic, msg }) ? done : "not connected: nothing was sent";
+    const sent = send({ op: "publish", topic, msg });
+    $("action-status").textContent = sent ? done : "not connected: nothing was sent";
+    return sent;
+  }
+
+  // Agents take no prompt while the robot is asleep or muted (the VAD's attention_state): say so
+  // instead of leaving the person waiting for an answer that cannot come.
+  const NOT_ANSWERED = {
+    asleep: "the robot is asleep: agents ignore prompts until it wakes (Wake, or a wake phrase such as \"wake up\")",
+    muted: "the robot is muted: agents ignore prompts until it is unmuted (Unmute)",
+  };
+
+  function sendPrompt(value) {
+    const why = Object.prototype.hasOwnProperty.call(NOT_ANSWERED, state.lastAttention) ? NOT_ANSWERED[state.lastAttention] : "";
+    const quoted = `"${text(value, 80)}"`;
+    if (!publish("prompt_text", { data: value }, why ? `sent ${quoted}, but ${why}` : `sent: ${quoted}`)) return;
+    if (why) addLine("ignored", `${quoted} will not be answered: ${why}`);
   }
 
   function setupControls() {
@@ -387,33 +518,11 @@
       const input = $("prompt-input");
       const value = input.value.trim();
       if (!value) return;
-      publish("prompt_text", { data: value }, `sent: "${text(value, 80)}"`);
+      sendPrompt(value);
       input.value = "";
     });
   }
 
-  async function loadSettings() {
-    const query = TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : "";
-    try {
-      const response = await fetch(`monitor-config.json${query}`, { cache: "no-store" });
-      if (!response.ok) throw new Error(`HTTP ${response.status}`);
-      const settings = await response.json();
-      const page = { ...DEFAULTS.page };
-      for (const key of Object.keys(page)) {
-        const value = settings && settings.page ? settings.page[key] : undefined;
-        if (Number.isInteger(value) && value > 0) page[key] = value;
-      }
-      state.settings = { currency: text(settings.currency, 8) || DEFAULTS.currency, page };
-    } catch (error) {
-      $("action-status").textContent = `settings not loaded (${text(error.message, 80)}); using defaults`;
-    }
-  }
-
-  async function start() {
-    setupControls();
-    await loadSettings();
-    connect();
-  }
-
-  start();
+  setupControls();
+  connect();
 })();
