@@ -41,10 +41,7 @@ class EchoGate:
     def admits(self, start_ns: int, samples: int, sample_rate: int, now_ns: int) -> bool:
         """Whether a block of `samples` (all channels) captured from `start_ns` on may hold the
         user, not the robot. The rate is not checked here (the caller does, for what it admits)."""
-        end_ns = start_ns + samples * NS_PER_S // max(sample_rate, 1)
-        if not start_ns or abs(now_ns - end_ns) > TRUSTED_STAMP_NS:
-            start_ns = end_ns = now_ns
-        end_ns = max(end_ns, start_ns + 1)
+        start_ns, end_ns = captured(start_ns, samples, sample_rate, now_ns)
         for spell_start, spell_end in self._spells:
             if spell_end is None:
                 if end_ns > spell_start:
@@ -52,3 +49,12 @@ class EchoGate:
             elif start_ns < spell_end + self._tail_ns and end_ns > spell_start:
                 return False
         return True
+
+
+def captured(start_ns: int, samples: int, sample_rate: int, now_ns: int) -> tuple[int, int]:
+    """When a block of `samples` (all channels) stamped `start_ns` was heard, as (start, end) on
+    the clock of `now_ns`: its arrival, for a stamp that is not on that clock."""
+    end_ns = start_ns + samples * NS_PER_S // max(sample_rate, 1)
+    if not start_ns or abs(now_ns - end_ns) > TRUSTED_STAMP_NS:
+        start_ns = end_ns = now_ns
+    return start_ns, max(end_ns, start_ns + 1)

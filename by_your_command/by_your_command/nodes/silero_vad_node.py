@@ -2,7 +2,8 @@
 
 Listens on `input_topic` (default `audio_filtered`; set it to `audio`, or remap, when there is no
 echo control); with `echo_gate` it ignores its input while `assistant_speaking` and a tail after
-(half duplex in one hop: the profiles' gate echo mode runs no echo_suppressor). Sleep/wake via
+(half duplex in one hop: the profiles' gate echo mode runs no echo_suppressor), but hears an
+utterance begun before the robot spoke to its end (vad/half_duplex.py). Sleep/wake via
 `wake_cmd`, mute via `voice_active`, wake/sleep phrases on `prompt_text`, and (`spoken_wake`) a
 wake phrase spoken while asleep, decoded here; the state is latched on `attention_state`. Logic
 lives in by_your_command.vad.
@@ -20,7 +21,6 @@ from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
-from by_your_command.audio.echo_gate import EchoGate
 from by_your_command.nodes._audio_msgs import int16_field, pcm_of
 from by_your_command.nodes._delivery import DeliveryCheck
 from by_your_command.nodes._params import declare_config
@@ -28,6 +28,7 @@ from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
 from by_your_command.vad.attention import Attention, AttentionState, PhraseCommand, PhraseMatcher
 from by_your_command.vad.config import VadConfig
 from by_your_command.vad.detector import VoiceDetector
+from by_your_command.vad.half_duplex import HalfDuplexGate
 from by_your_command.vad.model import SileroModel
 from by_your_command.vad.segmenter import Event, UtteranceChunk, VoiceActivity
 from by_your_command.vad.spoken_wake import (
@@ -65,9 +66,9 @@ class SileroVadNode(Node):
         self.create_subscription(Bool, "wake_cmd", self._on_wake_cmd, RELIABLE)
         self.create_subscription(Bool, "voice_active", self._on_voice_active, RELIABLE)
         self.create_subscription(String, "prompt_text", self._on_prompt_text, RELIABLE)
-        self._gate: EchoGate | None = None
+        self._gate: HalfDuplexGate | None = None
         if self.config.echo_gate:
-            self._gate = EchoGate(self.config.gate_tail_ms)
+            self._gate = HalfDuplexGate(self.config.gate_tail_ms, self.config.gate_hold_ms)
             self.create_subscription(Bool, "assistant_speaking", self._on_speaking, LATCHED)
         self.blocks_ignored = 0  # arrived while asleep or muted
         self.blocks_gated = 0  # captured while the assistant spoke (echo_gate)
@@ -96,9 +97,14 @@ class SileroVadNode(Node):
             f"VAD ready on '{self.config.input_topic}': threshold={self.config.threshold} "
             f"min_silence={self.config.min_silence_duration_ms} ms pre_roll={self.config.pre_roll_frames} "
             f"chunk={self.config.utterance_chunk_frames} frames, "
-            f"echo gate {f'on (tail {self.config.gate_tail_ms} ms)' if self._gate else 'off'}, "
+            f"echo gate {self._gate_summary()}, "
             f"{self.attention.state.value}"
         )
+
+    def _gate_summary(self) -> str:
+        if self._gate is None:
+            return "off"
+        return f"on (tail {self.config.gate_tail_ms} ms, hold {self.config.gate_hold_ms} ms)"
 
     def _start_spoken_wake(self) -> WakeWorker | None:
         if not self.config.spoken_wake:
@@ -143,10 +149,11 @@ class SileroVadNode(Node):
     def _on_speaking(self, msg: Bool) -> None:
         if self._gate is None:  # not subscribed without it
             return
-        started = self._gate.set_speaking(bool(msg.data), int(self.get_clock().now().nanoseconds))
-        if started and self.detector.streaming:
-            # From now on the mic hears the robot: the open utterance ends here, not when the
-            # audio timeout notices that no input passes.
+        now = int(self.get_clock().now().nanoseconds)
+        cut = self._gate.set_speaking(bool(msg.data), now, mid_utterance=self.detector.in_utterance)
+        if cut and self.detector.streaming:
+            # From now on the mic hears the robot: what the detector holds (pre-roll, or an
+            # utterance the hold does not cover) ends here, not when the audio timeout notices.
             self._stop_detector()
 
     def _gated(self, msg: AudioChunk) -> bool:
@@ -160,13 +167,27 @@ class SileroVadNode(Node):
         self._last_audio = time.monotonic()
         if self._gated(msg):
             self.blocks_gated += 1
+            if self.detector.streaming:  # a held utterance reached the end of its hold
+                self._stop_detector()
         elif self.attention.listening:
-            self._publish(self._detect(msg))
+            self._publish(self._held(self._detect(msg)))
         elif self._wake_worker is not None and self.attention.state is AttentionState.ASLEEP:
             self._asleep_audio = True
-            self._hear_asleep(self._detect(msg))
+            self._hear_asleep(self._held(self._detect(msg)))
         else:
             self.blocks_ignored += 1
+
+    def _held(self, events: list[Event]) -> list[Event]:
+        """While an utterance is held through the robot's speech: its events up to its end. What
+        follows in the block is the robot's voice, and anything it started is dropped unheard."""
+        if self._gate is None or not self._gate.holding:
+            return events
+        for index, event in enumerate(events):
+            if isinstance(event, VoiceActivity) and not event.active:
+                self._gate.release()
+                self.detector.stop()
+                return events[: index + 1]
+        return events
 
     def _hear_asleep(self, events: list[Event]) -> None:
         """Whole utterances go to the recognizer; nothing (not even voice_activity) is published."""
@@ -218,6 +239,8 @@ class SileroVadNode(Node):
         # What the detector holds belongs to the state being left: awake audio is closed with its
         # end marker, asleep audio is dropped. Either way no stale pre-roll survives the change.
         events = self.detector.stop()
+        if self._gate is not None:
+            self._gate.release()
         if self._asleep_audio:
             self._collector.reset()
         else:
@@ -228,6 +251,8 @@ class SileroVadNode(Node):
 
     def _stop_detector(self) -> None:
         """Audio stopped: close the open utterance where it belongs (published, or decoded)."""
+        if self._gate is not None:
+            self._gate.release()
         if self._asleep_audio:
             self._hear_asleep(self.detector.stop())
         else:

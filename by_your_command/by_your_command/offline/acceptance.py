@@ -37,6 +37,11 @@ within longer_form_regret of it ("reach to the back right" for "reach to the rig
 differ by a word Moonshine may or may not have heard, and in a reverberant room short words such
 as "back" are smeared into the next ("Reach to the band ride."): taken, the shorter form is often
 a wrong bearing.
+Three rules have the last word. The reranking does not overrule a form Moonshine wrote word for
+word ("Please look up." was taken as `lookout`) unless pocketsphinx's grammar heard the other
+meaning. A command that drives the base (`moves_base`) needs positive evidence: Moonshine wrote a
+word of it, or pocketsphinx's grammar heard it. And a question gives way to a stop phrase that may
+have been said (`stop_over_question_regret`): stop outranks everything.
 
 Noise raises every regret, the right form's and chat's alike: Moonshine is less sure of every
 token. Limits that keep all chat out of clean speech therefore turn away commands in noise that
@@ -151,6 +156,14 @@ class Acceptance:
     reverberant_from_fall_ms: float = 100.0
     rescore_meanings: int = 4
     rerank: RerankWeights = field(default_factory=RerankWeights)
+    # Commands that drive the base: taken only on positive evidence, Moonshine having written a
+    # word of the command or pocketsphinx's grammar having heard it ("bumper" in heavy noise was
+    # turned around, Moonshine writing nothing and pocketsphinx hearing "bumper").
+    moves_base: tuple[str, ...] = ("move", "turn", "follow")
+    # A question gives way to a stop phrase pocketsphinx's grammar heard, or that Moonshine finds
+    # within this regret of it (taken if within phrase_regret, else neither is): "halt" heard as
+    # "help" must stop, not list what the robot does.
+    stop_over_question_regret: float = 3.0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.noisy_below_snr_db):
@@ -159,6 +172,8 @@ class Acceptance:
             raise ValueError("reverberant_from_fall_ms must be positive and finite")
         if self.rescore_meanings < 1:
             raise ValueError("rescore_meanings must be at least 1")
+        if not 0.0 <= self.stop_over_question_regret < math.inf:
+            raise ValueError("stop_over_question_regret must be finite and not negative")
 
     def limits(self, snr_db: float, fall_ms: float) -> AcceptLimits:
         """The limits for an utterance of this SNR and fall time (front_end.py). Noise decides

@@ -153,6 +153,9 @@ class Evidence:
     fall_ms: float = 0.0  # how slowly its sounds die away: reverberation (front_end.fall_time_ms)
 
 
+_STOP = (RecognitionKind.PHRASE, "stop")  # the phrase that outranks everything
+
+
 def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
     """A regret limit, lowered to phrase_regret for the short wake/sleep/stop phrases."""
     return min(regret, limits.phrase_regret) if kind is RecognitionKind.PHRASE else regret
@@ -203,6 +206,7 @@ class OfflineRecognizer:
         spoken = self.config.spoken
         openings = set(" ".join(spoken.polite_openings).split())
         # What Moonshine writes of a polite opening or closing: "Can you" also for "could you".
+        self._polite_words = frozenset(" ".join(spoken.polite_openings + spoken.polite_closings).split())
         self._politeness_cues = frozenset(
             [opening.split()[0] for opening in spoken.polite_openings if opening.split()]
             + " ".join(spoken.polite_closings).split()
@@ -348,6 +352,8 @@ class OfflineRecognizer:
         # with enough evidence: some voices' "move full right" is "Move forward" at regret 0.
         reranked = rescore(evidence.candidates, acceptance.rerank)
         chosen = self._rescored_choice(reranked, grammar, limits, evidence.free_text)
+        if chosen is not None and self._overrules_written_form(chosen, evidence, grammar, limits):
+            chosen = None  # Moonshine's form, written word for word, is taken below
         if chosen is None and forms[0].regret <= limits.accept_regret:
             chosen = forms[0]
         if chosen is None and grammar is not None:
@@ -371,7 +377,64 @@ class OfflineRecognizer:
             return None
         if self._longer_form_as_likely(chosen, forms, limits):
             return None
+        if self._moves_base_unheard(chosen, evidence.free_text, grammar, acceptance):
+            return None
+        if self.forms[chosen.index].kind is RecognitionKind.QUESTION:
+            return self._question_or_stop(chosen, forms, grammar, limits, acceptance)
         return chosen
+
+    def _overrules_written_form(
+        self, chosen: FormScore, evidence: Evidence, grammar: SpokenForm | None, limits: AcceptLimits
+    ) -> bool:
+        """Whether the reranked choice is another meaning than a form Moonshine wrote word for word,
+        on pocketsphinx's alignments alone: "Please look up." was taken as `lookout`. Only
+        pocketsphinx's grammar hearing the other meaning overrules such a transcript (some voices'
+        "move full right" is "Move forward" to Moonshine, and the grammar heard "move full right")."""
+        written = evidence.forms[0]
+        if written.end_regret > limits.end_regret or self._meaning(chosen) == self._meaning(written):
+            return False
+        words = tuple(_words(evidence.free_text))
+        if not words or words not in {tuple(_words(way)) for way in self._written[written.index]}:
+            return False
+        return grammar is None or (grammar.kind, grammar.canonical) != self._meaning(chosen)
+
+    def _moves_base_unheard(
+        self, score: FormScore, free_text: str, grammar: SpokenForm | None, acceptance: Acceptance
+    ) -> bool:
+        """Whether a command that drives the base has no positive evidence: Moonshine wrote none of
+        its command's words and pocketsphinx's grammar heard another meaning or nothing. A wrong
+        turn cannot be taken back; a command turned away is said again."""
+        form = self.forms[score.index]
+        base = form.canonical.partition("@")[0]
+        if form.kind is not RecognitionKind.COMMAND or base not in acceptance.moves_base:
+            return False
+        if grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score):
+            return False
+        command_words = set(form.words.split()) - self._polite_words
+        return not command_words & set(_words(free_text))
+
+    def _question_or_stop(
+        self,
+        question: FormScore,
+        forms: list[FormScore],
+        grammar: SpokenForm | None,
+        limits: AcceptLimits,
+        acceptance: Acceptance,
+    ) -> FormScore | None:
+        """The question, unless a stop phrase may have been said: "halt" was answered with what the
+        robot can do (heard as "help"). Stop outranks everything: pocketsphinx's grammar heard it,
+        or Moonshine found it (ending where the model ends) within stop_over_question_regret of the
+        question and near enough to be heard (phrase_regret), and it is taken. Nearly as likely but
+        further than that (chat: "how old are you" put "stop" at 9.9, the question at 11.4), neither
+        is."""
+        stops = [s for s in forms if self._meaning(s) == _STOP and s.end_regret <= limits.end_regret]
+        if grammar is not None and (grammar.kind, grammar.canonical) == _STOP and stops:
+            return min(stops, key=lambda score: score.regret)
+        near = [s for s in stops if s.regret <= question.regret + acceptance.stop_over_question_regret]
+        if not near:
+            return question
+        best = min(near, key=lambda score: score.regret)
+        return best if best.regret <= limits.phrase_regret else None
 
     def _far_from_written(self, score: FormScore, free_text: str, per_word: float) -> bool:
         """Whether Moonshine wrote words of its own and the form is more than `per_word` regret per

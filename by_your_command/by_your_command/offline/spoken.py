@@ -41,7 +41,7 @@ class SpokenForm:
     # A command form wrapped in a polite opening or closing: how many words they add ("can you
     # look up please": 3); 0 for a plain form.
     polite_words: int = 0
-    extra: bool = False  # from SpokenVocabularyConfig.extra_forms, or a polite form of one
+    extra: bool = False  # from extra_forms or extra_questions (SpokenVocabularyConfig), or polite of one
 
     @property
     def polite(self) -> bool:
@@ -82,6 +82,12 @@ class SpokenVocabularyConfig:
             "capabilities": ("what can you do", "help"),
             "identity": ("who are you", "what is your name"),
         }
+    )
+    # Ways to ask that Moonshine alone scores, like the extra forms. Without "... now", Moonshine's
+    # word-for-word "What time is it now?" paid the end regret for "now" and was turned away; in
+    # pocketsphinx's grammar, which must name some form, the form took "what time does it open".
+    extra_questions: dict[str, tuple[str, ...]] = field(
+        default_factory=lambda: {"time": ("what time is it now",)}
     )
     # Labels that label commands (follow, track) can take by voice: "follow me" -> follow@me.
     labels: tuple[str, ...] = ("me", "person", "ball")
@@ -176,6 +182,11 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
     for question, spoken in config.questions.items():
         for words in spoken:
             add(words, RecognitionKind.QUESTION, question)
+    for question, spoken in config.extra_questions.items():
+        if question not in config.questions:
+            raise ValueError(f"extra question {question!r} is not one of the questions")
+        for words in spoken:
+            add(words, RecognitionKind.QUESTION, question, extra=True)
     commands = [form for form in forms.values() if form.kind is RecognitionKind.COMMAND]
     for opening, closing in _politeness(config):
         for form in commands:

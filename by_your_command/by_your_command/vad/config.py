@@ -86,6 +86,13 @@ class VadConfig:
         default=300,
         metadata={"help": "echo_gate: keep ignoring the input this long after the assistant stops"},
     )
+    gate_hold_ms: int = field(
+        default=2000,
+        metadata={
+            "help": "echo_gate: an utterance the user began before the assistant started speaking is heard "
+            "to its end, for at most this long after the assistant started (0: it ends there)"
+        },
+    )
 
     def __post_init__(self) -> None:
         if not 0.0 < self.threshold < 1.0:
@@ -108,6 +115,8 @@ class VadConfig:
             raise ValueError(f"delivery_confirm_s must be in (0, 3600], got {self.delivery_confirm_s}")
         if not 0 <= self.gate_tail_ms <= 10_000:
             raise ValueError(f"gate_tail_ms must be in [0, 10000], got {self.gate_tail_ms}")
+        if not 0 <= self.gate_hold_ms <= 10_000:
+            raise ValueError(f"gate_hold_ms must be in [0, 10000], got {self.gate_hold_ms}")
         if self.gap_tolerance_ms <= 0:
             raise ValueError(f"gap_tolerance_ms must be > 0, got {self.gap_tolerance_ms}")
         PhraseMatcher(self.wake_phrases, self.sleep_phrases, self.robot_name)  # raises on a bad phrase

@@ -45,6 +45,9 @@ def test_limits_are_checked() -> None:
     for bad_fall in (0.0, -5.0, math.nan, math.inf):
         with pytest.raises(ValueError, match="reverberant_from_fall_ms"):
             Acceptance(reverberant_from_fall_ms=bad_fall)
+    for bad_apart in (-1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="stop_over_question_regret"):
+            Acceptance(stop_over_question_regret=bad_apart)
 
 
 @pytest.mark.unit

@@ -16,8 +16,8 @@ import pytest
 from by_your_command.offline.acceptance import AcceptLimits
 from by_your_command.offline.moonshine import FormScore
 from by_your_command.offline.recognizer import Evidence, OfflineRecognizer, Rejection
-from by_your_command.offline.rescoring import Alignment, Rescored, rescore
-from by_your_command.offline.spoken import RecognitionKind
+from by_your_command.offline.rescoring import Alignment, Candidate, Rescored, rescore
+from by_your_command.offline.spoken import RecognitionKind, SpokenForm
 
 RATE = 16000
 Synthesize = Callable[[str, str], bytes]
@@ -719,3 +719,105 @@ def test_a_reverberant_utterance_is_judged_by_the_reverberant_limits(
     room = in_room(speech, 0.5).astype("<i2")
     assert recognizer.evidence(speech).fall_ms < acceptance.reverberant_from_fall_ms
     assert recognizer.evidence(room).fall_ms > acceptance.reverberant_from_fall_ms
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("voice", ["en-us+m7", "en-us+f3", "en-gb+m8"])
+def test_what_time_is_it_now_is_the_time_question(
+    recognizer: OfflineRecognizer, synthesize: Synthesize, voice: str
+) -> None:
+    """Moonshine writes it word for word ("What time is it now?"); with no form for it, "what time
+    is it" paid the end regret for "now" and the question was never caught."""
+    result = recognizer.recognize(synthesize("what time is it now", voice), RATE)
+    assert (result.kind, result.canonical) == (RecognitionKind.QUESTION, "time"), result
+
+
+def _candidate(
+    recognizer: OfflineRecognizer, score: FormScore, per_frame: float, grammar: SpokenForm | None = None
+) -> Candidate:
+    words = recognizer.forms[score.index].words
+    agrees = grammar is not None and recognizer._meaning(score) == (grammar.kind, grammar.canonical)
+    return Candidate(score, Alignment(100 * per_frame, 100), len(words.split()), agrees)
+
+
+@pytest.mark.unit
+def test_a_form_moonshine_wrote_word_for_word_is_not_overruled_on_alignments_alone(
+    recognizer: OfflineRecognizer,
+) -> None:
+    """ "Please look up." written exactly was taken as `lookout`: pocketsphinx aligned "please look
+    out" better, and its regret was within Moonshine's near limit. Only pocketsphinx's grammar
+    hearing the other meaning overrules a word-for-word transcript ("move full right", written
+    "Move forward")."""
+    look_up, look_out = _form(recognizer, "please look up"), _form(recognizer, "please look out")
+    acceptance = recognizer.config.acceptance
+
+    def decided(free_text: str, grammar_text: str) -> str:
+        grammar = next((f for f in recognizer.forms if f.words == grammar_text), None)
+        written, other = FormScore(look_up, -2.0, 0.0), FormScore(look_out, -3.5, 1.5)
+        candidates = [
+            _candidate(recognizer, written, -2.0, grammar),
+            _candidate(recognizer, other, -0.8, grammar),
+        ]
+        assert recognizer._meaning(rescore(candidates, acceptance.rerank)[0].score)[1] == "lookout"
+        evidence = Evidence(40.0, [written, other], free_text, grammar_text, candidates)
+        chosen = recognizer.decide(evidence, acceptance, lambda: grammar_text)
+        return "" if chosen is None else recognizer._meaning(chosen)[1]
+
+    assert decided("Please look up.", "") == "lookup"
+    assert decided("Please look up.", "reach to the") == "lookup"
+    assert decided("Please look up.", "look out") == "lookout"  # the grammar heard it: overruled
+    assert decided("Please lock up.", "") == "lookout"  # not written word for word: reranked
+
+
+@pytest.mark.unit
+def test_a_command_that_moves_the_base_needs_positive_evidence(recognizer: OfflineRecognizer) -> None:
+    """ "bumper" in heavy noise was taken as `turn@back` (the base turns 180 degrees): Moonshine
+    wrote nothing, pocketsphinx heard "bumper", and pocketsphinx's alignment of "turn back" carried
+    the reranking. A base command is taken only when Moonshine wrote a word of it or pocketsphinx's
+    grammar heard it; a head movement needs no more than before."""
+    turn_back, bumper, look_up = (_form(recognizer, w) for w in ("turn back", "bumper", "look up"))
+    acceptance = recognizer.config.acceptance
+    noisy = acceptance.noisy_below_snr_db - 8.0
+
+    def decided(index: int, free_text: str, grammar_text: str) -> str:
+        grammar = next((f for f in recognizer.forms if f.words == grammar_text), None)
+        taken, heard = FormScore(index, -6.0, 5.0), FormScore(bumper, -8.0, 6.0)
+        candidates = [
+            _candidate(recognizer, taken, -0.9, grammar),
+            _candidate(recognizer, heard, -1.8, grammar),
+        ]
+        evidence = Evidence(noisy, [taken, heard], free_text, grammar_text, candidates)
+        chosen = recognizer.decide(evidence, acceptance, lambda: "")
+        return "" if chosen is None else recognizer._meaning(chosen)[1]
+
+    assert decided(turn_back, "", "bumper") == ""
+    assert decided(turn_back, "", "") == ""  # pocketsphinx heard nothing: no evidence either
+    assert decided(turn_back, "", "turn back") == "turn@back"  # pocketsphinx's grammar heard it
+    assert decided(turn_back, "Turn black.", "bumper") == "turn@back"  # Moonshine wrote a word of it
+    assert decided(look_up, "", "bumper") == "lookup"  # the head: as before
+
+
+@pytest.mark.unit
+def test_a_stop_phrase_is_never_taken_as_a_question(recognizer: OfflineRecognizer) -> None:
+    """ "halt" was answered with what the robot can do (heard as "help"). A question gives way to a
+    stop phrase pocketsphinx's grammar heard, or that Moonshine finds nearly as likely and near
+    enough to be heard: stop outranks everything. Nearly as likely but further than that, neither
+    is taken (chat: "how old are you" put "stop" at 9.9 and the question at 11.4)."""
+    help_, halt = _form(recognizer, "help"), _form(recognizer, "halt")
+    acceptance = recognizer.config.acceptance
+    apart, phrase_regret = acceptance.stop_over_question_regret, acceptance.clean.phrase_regret
+
+    def decided(
+        help_regret: float, halt_regret: float, grammar_text: str
+    ) -> tuple[RecognitionKind, str] | None:
+        forms = [FormScore(help_, -1.0, help_regret), FormScore(halt, -6.0, halt_regret)]
+        evidence = Evidence(40.0, forms, "", grammar_text, [])
+        chosen = recognizer.decide(evidence, acceptance, lambda: grammar_text)  # verified
+        return None if chosen is None else recognizer._meaning(chosen)
+
+    stop, capabilities = (RecognitionKind.PHRASE, "stop"), (RecognitionKind.QUESTION, "capabilities")
+    assert decided(0.0, apart - 0.5, "help") == stop
+    # Nearly as likely, but not near enough to be heard: neither.
+    assert decided(phrase_regret - 1.0, phrase_regret + 0.5, "help") is None
+    assert decided(0.0, apart + 0.5, "help") == capabilities  # "help", said clearly: "halt" far behind
+    assert decided(0.0, 14.0, "halt") == stop  # pocketsphinx heard it

@@ -89,6 +89,17 @@ def test_an_extra_form_must_be_a_command_in_normal_form() -> None:
 
 
 @pytest.mark.unit
+def test_an_extra_question_is_moonshines_alone_and_must_be_a_question() -> None:
+    meaning = {form.words: form for form in FORMS}
+    now = meaning["what time is it now"]
+    assert (now.kind, now.canonical, now.extra) == (RecognitionKind.QUESTION, "time", True)
+    assert not meaning["what time is it"].extra
+    unknown = SpokenVocabularyConfig(extra_questions={"weather": ("is it raining",)})
+    with pytest.raises(ValueError, match="not one of the questions"):
+        build_spoken_forms(VOCABULARY, unknown)
+
+
+@pytest.mark.unit
 def test_commands_can_be_asked_for_politely_phrases_and_questions_cannot() -> None:
     meaning = {form.words: form for form in FORMS}
     # The polite form and how many of its words are politeness.

@@ -109,18 +109,23 @@ def test_hysteresis_keeps_the_utterance_through_middling_probabilities() -> None
 def test_finish_closes_an_open_utterance_and_drops_pre_roll() -> None:
     config = VadConfig(pre_roll_frames=5, utterance_chunk_frames=2)
     segmenter = Segmenter(config)
+    events: list[UtteranceChunk | VoiceActivity] = []
     for index in range(3):
-        segmenter.push(frame(index), 0.9)
-    events = segmenter.finish()
-    assert isinstance(events[0], UtteranceChunk) and events[0].is_utterance_end
-    assert events[1] == VoiceActivity(False, frame(2).time_ns)
-    assert segmenter.finish() == []
-    for index in range(3, 6):
-        segmenter.push(frame(index), 0.0)
-    segmenter.finish()  # sleeping forgets what was heard before
-    events = segmenter.push(frame(6), 0.9)
+        events += segmenter.push(frame(index), 0.9)
+    events += segmenter.finish()
     chunks = [e for e in events if isinstance(e, UtteranceChunk)]
-    assert chunks == [] or frame_ids(chunks[0])[0] == 6
+    # Every frame heard once, in order, and the last chunk carries the end marker.
+    assert [i for c in chunks for i in frame_ids(c)] == [0, 1, 2]
+    assert [c.is_utterance_end for c in chunks] == [False, True]
+    assert events[-1] == VoiceActivity(False, frame(2).time_ns)
+    assert segmenter.finish() == [] and not segmenter.in_utterance
+    for index in range(3, 6):
+        assert segmenter.push(frame(index), 0.0) == []  # pre-roll, until...
+    assert segmenter.finish() == []  # ...sleeping forgets what was heard before
+    events = segmenter.push(frame(6), 0.9) + segmenter.push(frame(7), 0.9)
+    assert events[0] == VoiceActivity(True, frame(6).time_ns)
+    [chunk] = [e for e in events if isinstance(e, UtteranceChunk)]
+    assert frame_ids(chunk) == [6, 7] and chunk.utterance_id == frame(6).time_ns  # no pre-roll from before
 
 
 @pytest.mark.unit

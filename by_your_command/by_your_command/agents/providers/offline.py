@@ -1,5 +1,5 @@
 """The offline provider: no network, no key, no model. It hears commands, answers a few questions,
-and says "I did not catch that" to everything else.
+and says "I did not catch that" to everything else (nothing, when the user already speaks again).
 
 A turn's audio is buffered (bounded) and decoded at end_of_turn by the offline recognizer
 (by_your_command/offline/: pocketsphinx with a language model generated from the command
@@ -67,6 +67,7 @@ class OfflineStats:
     commands: int = 0
     answers: int = 0
     not_caught: int = 0
+    not_caught_unsaid: int = 0  # the user already spoke again: no "I did not catch that" over them
     low_confidence: int = 0
     truncated_turns: int = 0
     dropped_audio_bytes: int = 0
@@ -245,6 +246,14 @@ class OfflineProvider:
             if decoded is None:
                 return
             understood = self._confident(decoded)
+            if understood.kind is RecognitionKind.REJECTED and self._audio:
+                # The user already speaks again: a late "I did not catch that" would talk over
+                # them and, half duplex, cut their next command short. Nothing is said.
+                self.stats.not_caught += 1
+                self.stats.not_caught_unsaid += 1
+                await self._emit(UserTranscript("", f"{response_id}-user"))
+                await self._emit(ResponseDone(response_id, ResponseStatus.COMPLETED))
+                return
             heard = understood.text.strip()
             if understood.kind is RecognitionKind.REJECTED:
                 # The decoder's guess at chat is filler words: kept out of the transcript, which

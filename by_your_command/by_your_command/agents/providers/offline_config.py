@@ -20,7 +20,9 @@ class OfflineConfig:
     commands_file: str = ""  # the command vocabulary; "" = the installed config/commands.yaml
     robot_name: str = RepliesConfig.robot_name  # "who are you"
     capabilities_text: str = RepliesConfig.capabilities  # "what can you do"
-    not_heard_text: str = NOT_CAUGHT  # said to chat and noise; "" = say nothing
+    # Said to chat and noise, unless the user already speaks again (it would talk over them and,
+    # half duplex, cut them short); "" = say nothing.
+    not_heard_text: str = NOT_CAUGHT
     refusal_text: str = "I can't do that: {reason}."  # {reason} is the command processor's
     acknowledgements: tuple[tuple[str, str], ...] = ()  # command base -> said when accepted ("Looking up")
     max_turn_s: float = 30.0  # audio beyond this in one turn is dropped (counted), never buffered

@@ -6,12 +6,14 @@ takes seconds (the acoustic model and the search), so it happens off the event l
 session connects, and the factory shares the loaded engine with every later session: a new session
 costs nothing. Its methods block and are called from threads; a timed-out call may still run when
 the next one starts, so each part is serialised (the recognizer has its own lock, the speaker gets
-one here).
+one here). Replies said before are kept (a few, bounded), and the not-heard reply is made at load:
+saying them again runs no synthesis.
 """
 
 from __future__ import annotations
 
 import threading
+from collections import OrderedDict
 from typing import Protocol, TypeVar
 
 from by_your_command.agents.providers.offline_config import OfflineConfig
@@ -20,6 +22,7 @@ from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, R
 from by_your_command.offline.speaker import Speaker
 
 T = TypeVar("T")
+SAID_KEPT = 32  # replies whose audio is kept: acknowledgements and the not-heard reply recur
 
 
 class Engine(Protocol):
@@ -43,6 +46,7 @@ class LocalEngine:
         self._recognizer: OfflineRecognizer | None = None
         self._speaker: Speaker | None = None
         self._matcher: TextMatcher | None = None
+        self._said: OrderedDict[str, tuple[bytes, int]] = OrderedDict()
 
     def load(self) -> None:
         with self._load_lock:
@@ -54,6 +58,11 @@ class LocalEngine:
             self._recognizer = recognizer
             # Typed text means what the same words mean spoken: the recognizer's vocabulary and forms.
             self._matcher = TextMatcher(recognizer.vocabulary, recognizer.config.spoken)
+        if config.not_heard_text.strip():
+            try:
+                self.say(config.not_heard_text.strip())  # ready before the first chat line: said at once
+            except (ValueError, RuntimeError):
+                pass  # said (and its failure reported) when it is needed
 
     def recognize(self, pcm: bytes, sample_rate: int) -> Recognition:
         return self._loaded(self._recognizer).recognize(pcm, sample_rate)  # never raises on bad audio
@@ -64,7 +73,13 @@ class LocalEngine:
     def say(self, text: str) -> tuple[bytes, int]:
         speaker = self._loaded(self._speaker)
         with self._speak_lock:
-            return speaker.say(text)
+            said = self._said.get(text)
+            if said is None:
+                said = self._said[text] = speaker.say(text)
+                if len(self._said) > SAID_KEPT:
+                    self._said.popitem(last=False)
+            self._said.move_to_end(text)
+            return said
 
     @staticmethod
     def _loaded(part: T | None) -> T:

@@ -36,6 +36,7 @@ from by_your_command.agents.events import (
 )
 from by_your_command.agents.inputs import UtteranceChunk
 from by_your_command.agents.provider import ProviderClosed, SessionSetup, ToolResult
+from by_your_command.agents.providers import offline_engine
 from by_your_command.agents.providers.offline import OfflineProvider
 from by_your_command.agents.providers.offline_config import OfflineConfig
 from by_your_command.agents.providers.offline_engine import LocalEngine
@@ -44,6 +45,7 @@ from by_your_command.agents.runtime import AgentRuntime
 from by_your_command.audio.pcm import read_wav, resample
 from by_your_command.cli import byc
 from by_your_command.offline.recognizer import Recognition
+from by_your_command.offline.speaker import Speaker
 
 pytestmark = pytest.mark.unit
 T = TypeVar("T")
@@ -269,6 +271,53 @@ def test_chat_is_never_a_command_and_is_not_caught(engine: LocalEngine, speech: 
         await quiet.close()
 
     run(scenario())
+
+
+def test_not_caught_is_left_unsaid_when_the_user_already_speaks_again(
+    engine: LocalEngine, speech: dict[str, bytes]
+) -> None:
+    """A late "I did not catch that" talked over the next command and, half duplex, cut it to its
+    first 0.45 s: when the next utterance has begun by the time the chat line is decoded, nothing
+    is said, and the command is heard whole."""
+
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(), engine)
+        await provider.connect(TOOLS)
+        await say_turn(provider, speech["chat"])
+        # The runtime streams the next utterance as it is said, before the chat line is decoded.
+        follow = speech["follow"]
+        half = len(follow) // 4 * 2  # whole samples
+        await provider.send_audio(follow[:half])
+        events = await until_done(provider)
+        assert of(events, ToolCall) == [] and of(events, AssistantAudio) == []
+        assert of(events, AssistantTranscript) == []
+        assert provider.stats.not_caught == 1 and provider.stats.not_caught_unsaid == 1
+        await say_turn(provider, follow[half:])
+        [call] = of(await until_done(provider), ToolCall)
+        assert json.loads(call.arguments) == {"command": "follow@me"}
+        await provider.close()
+
+    run(scenario())
+
+
+def test_the_not_heard_reply_is_made_when_the_engine_loads(
+    engine: LocalEngine, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Said to every chat line, the not-heard reply costs no synthesis when it is needed."""
+    monkeypatch.setattr(offline_engine, "OfflineRecognizer", lambda config: engine._recognizer)
+    synthesized: list[str] = []
+    synthesize = Speaker.say
+
+    def counted(speaker: Speaker, text: str) -> tuple[bytes, int]:
+        synthesized.append(text)
+        return synthesize(speaker, text)
+
+    monkeypatch.setattr(Speaker, "say", counted)
+    fresh = LocalEngine(OfflineConfig(not_heard_text="Sorry, say again?"))
+    fresh.load()
+    assert synthesized == ["Sorry, say again?"]
+    pcm, rate = fresh.say("Sorry, say again?")
+    assert len(pcm) > 0.3 * rate * 2 and synthesized == ["Sorry, say again?"]  # not made again
 
 
 def test_text_turns_use_the_same_meanings_without_the_recognizer(engine: LocalEngine) -> None:
