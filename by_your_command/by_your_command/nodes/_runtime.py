@@ -24,6 +24,9 @@ from by_your_command.stop_signals import StopRequests, StopVerdict
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SPIN_STOP_TIMEOUT_S = 5.0  # a callback still running after this is abandoned (logged)
+# A process-directed signal goes to another thread when the main one already has one pending; the
+# handler then runs only once the main thread wakes, so its wait wakes this often to let it.
+SIGNAL_CHECK_S = 1.0
 ACK_TIMEOUT_S = 2.0  # total wait for subscribers to acknowledge the last reliable messages
 EXIT_FAILED = 1
 
@@ -187,7 +190,8 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None, t
         executor.add_node(node)
         spinner = _Spinner(executor, stop)
         spinner.start()
-        stop.event.wait()
+        while not stop.event.wait(SIGNAL_CHECK_S):
+            pass  # the timeout lets the main thread run a handler whose signal another thread took
         if not spinner.stop():
             _log.error(f"a callback still runs after {SPIN_STOP_TIMEOUT_S} s: stopping without it")
             clean = False
