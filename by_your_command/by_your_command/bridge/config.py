@@ -36,6 +36,9 @@ class BridgeParams:
     diagnostics_period_s: float = field(default=1.0, metadata={"help": "0 disables diagnostics"})
     diagnostics_topic: str = field(default="/diagnostics", metadata={"help": "ROS convention: global"})
     ping_interval_s: float = field(default=20.0, metadata={"help": "WebSocket keepalive ping period"})
+    handshake_timeout_s: float = field(
+        default=10.0, metadata={"help": "a connection that has not completed its handshake by then is closed"}
+    )
     allowed_origins: tuple[str, ...] = field(
         default=(),
         metadata={
@@ -84,6 +87,8 @@ class BridgeParams:
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.handshake_timeout_s <= 0:
+            raise ValueError(f"handshake_timeout_s must be positive, got {self.handshake_timeout_s}")
         if self.inline_convert_bytes < 0:
             raise ValueError(f"inline_convert_bytes must be >= 0, got {self.inline_convert_bytes}")
         if self.rate_limit_per_s <= 0 or self.rate_burst < 1 or self.refusal_logs_per_s <= 0:

@@ -8,7 +8,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from by_your_command.bridge.protocol import Status, encode_status
+from by_your_command.bridge.protocol import Status, encode_status, utf8_size
 
 
 @dataclass
@@ -16,6 +16,7 @@ class _Entry:
     text: str
     topic: str
     drops_oldest: bool
+    size: int  # bytes of UTF-8
 
 
 class SendQueue:
@@ -25,12 +26,11 @@ class SendQueue:
     - drop-oldest topics (video) replace their own oldest queued frame: only fresh frames matter;
     - every other topic drops the *new* message, counts it and owes the client a `status`
       warning with the counts, sent ahead of the next frame (never a silent loss).
-    Status frames (refusals) have their own bound in count and bytes: beyond it, further ones are
-    only counted by code and the client gets one `suppressed` summary, so a client that floods us
-    with bad requests and never reads cannot grow the bridge. Drop and loss reports are one
-    counter per topic, so they need no bound.
-    Sizes are `len(text)`: every frame the bridge sends is ASCII JSON (json.dumps escapes the rest),
-    so characters are bytes.
+    Status frames (refusals) count towards the same byte bound and have their own, smaller one in
+    count and bytes: beyond either, further ones are only counted by code and the client gets one
+    `suppressed` summary, so a client that floods us with bad requests and never reads cannot grow
+    the bridge. Drop and loss reports are one counter per topic, so they need no bound.
+    Sizes are bytes of UTF-8, whatever the text holds.
     """
 
     def __init__(
@@ -59,26 +59,27 @@ class SendQueue:
 
     @property
     def queued_bytes(self) -> int:
-        return self._bytes
+        """Everything waiting for this client, status replies included."""
+        return self._bytes + self._control_bytes
 
     def put(self, text: str, topic: str, drops_oldest: bool, topic_limit: int) -> bool:
         """Queue a frame; False when it (or an older one of the same topic) had to be dropped."""
-        size = len(text)
+        size = utf8_size(text)
         full = (
             self._per_topic.get(topic, 0) >= topic_limit
             or len(self._entries) >= self.max_messages
-            or self._bytes + size > self.max_bytes
+            or self.queued_bytes + size > self.max_bytes
         )
         if full and drops_oldest:
             victim = next((entry for entry in self._entries if entry.topic == topic), None)
             if victim is not None:
                 self._remove(victim)
                 self._count_drop(topic, reported=False)
-                full = len(self._entries) >= self.max_messages or self._bytes + size > self.max_bytes
+                full = len(self._entries) >= self.max_messages or self.queued_bytes + size > self.max_bytes
         if full:
             self._count_drop(topic, reported=not drops_oldest)
             return False
-        self._entries.append(_Entry(text, topic, drops_oldest))
+        self._entries.append(_Entry(text, topic, drops_oldest, size))
         self._per_topic[topic] = self._per_topic.get(topic, 0) + 1
         self._bytes += size
         self._wakeup.set()
@@ -90,13 +91,18 @@ class SendQueue:
 
     def put_control(self, text: str, code: str = "status") -> bool:
         """Queue a status reply; False when the bound is reached and it was only counted under `code`."""
-        if len(self._control) >= self.max_control or self._control_bytes + len(text) > self.max_control_bytes:
+        size = utf8_size(text)
+        if (
+            len(self._control) >= self.max_control
+            or self._control_bytes + size > self.max_control_bytes
+            or self.queued_bytes + size > self.max_bytes
+        ):
             self.control_overflow += 1
             self._suppressed[code] = self._suppressed.get(code, 0) + 1
             self._wakeup.set()
             return False
         self._control.append(text)
-        self._control_bytes += len(text)
+        self._control_bytes += size
         self._wakeup.set()
         return True
 
@@ -143,7 +149,7 @@ class SendQueue:
             )
         if self._control:
             text = self._control.popleft()
-            self._control_bytes -= len(text)
+            self._control_bytes -= utf8_size(text)
             return text
         if self._entries:
             entry = self._entries.popleft()
@@ -164,7 +170,7 @@ class SendQueue:
         self._forget(entry)
 
     def _forget(self, entry: _Entry) -> None:
-        self._bytes -= len(entry.text)
+        self._bytes -= entry.size
         remaining = self._per_topic[entry.topic] - 1
         if remaining:
             self._per_topic[entry.topic] = remaining

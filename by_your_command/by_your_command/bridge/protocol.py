@@ -49,6 +49,13 @@ def preview(value: object, limit: int = PREVIEW_CHARS) -> str:
     return quoted if len(text) <= limit else f"{quoted[:-1]}…{quoted[-1]} ({len(text)} chars)"
 
 
+def utf8_size(frame: str | bytes) -> int:
+    """Size in bytes as on the wire (a "€" is 3 bytes): every limit and counter is in these."""
+    if isinstance(frame, bytes):
+        return len(frame)
+    return len(frame) if frame.isascii() else len(frame.encode("utf-8", "surrogatepass"))
+
+
 def _refuse_constant(name: str) -> Any:
     raise ProtocolError(f"{name} is not a JSON number (non-finite numbers are refused)")
 

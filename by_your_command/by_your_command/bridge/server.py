@@ -14,13 +14,14 @@ from websockets.http11 import Request, Response
 from by_your_command.bridge.auth import check_bind, is_loopback, presented_token, token_matches
 from by_your_command.bridge.core import BridgeCore, ClientSession
 from by_your_command.bridge.flow import LogLimiter
-from by_your_command.bridge.protocol import preview
+from by_your_command.bridge.protocol import preview, utf8_size
 from by_your_command.bridge.static_files import (
     StaticSite,
     error_response,
     file_response,
     is_websocket_upgrade,
 )
+from by_your_command.bridge.tcp_connections import abort_unopened, tracked_connection_class
 
 log = logging.getLogger(__name__)
 # websockets logs request headers (Authorization: the token) at DEBUG: give it a logger that never does.
@@ -31,6 +32,10 @@ _QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
 # so a client cannot make us buffer arbitrary amounts before we can say no. websockets counts
 # max_size in bytes of the frame payload, so a text frame of multi-byte characters cannot slip by.
 HARD_LIMIT_FACTOR = 4
+# Frames websockets reads ahead of the handler. While the handler waits (a client's publishes are
+# queued behind its conversion) each of them may be up to the hard limit, so keep them few: what
+# one client costs is bounded by pending_publish_bytes plus these, not 16 frames of 4 MiB.
+READ_AHEAD_FRAMES = 2
 _WILDCARD_HOSTS = {"", "0.0.0.0", "::"}
 
 
@@ -58,6 +63,7 @@ class BridgeServer:
         # synchronous check-and-add, so concurrent handshakes cannot exceed max_clients.
         self._admitted: set[ServerConnection] = set()
         self._watchers: set[asyncio.Task[None]] = set()
+        self._connections: set[ServerConnection] = set()  # every TCP connection, handshake or not
         self._log_limiter = LogLimiter(core.params.refusal_logs_per_s)
         self.refused_connections = 0
 
@@ -76,10 +82,13 @@ class BridgeServer:
             params.port,
             compression=None,  # deflate costs 5-40x on audio/image frames (DESIGN.md §11)
             max_size=params.max_message_bytes * HARD_LIMIT_FACTOR,
+            max_queue=READ_AHEAD_FRAMES,
             process_request=self._admit,
+            open_timeout=params.handshake_timeout_s,
             ping_interval=params.ping_interval_s or None,
             close_timeout=2,  # a client that stopped reading must not hold up shutdown for long
             logger=_QUIET_WEBSOCKET_LOG,
+            create_connection=tracked_connection_class(self._connections),
         )
         self._allowed_origins = {normalize_origin(o) for o in params.allowed_origins} | own_origins(
             params.host, self.port
@@ -93,15 +102,28 @@ class BridgeServer:
 
     async def stop(self) -> None:
         if self._server is not None:
-            self._server.close()
+            # Stop accepting first, so no connection arrives after the unopened ones are dropped;
+            # websockets would wait for each of those until its handshake timeout.
+            self._server.server.close()
+            unopened = abort_unopened(self._connections)
+            if unopened:
+                log.info("closed %d connection(s) that never completed a handshake", unopened)
+            self._server.close()  # open connections get 1001 (going away)
             await self._server.wait_closed()
-        for watcher in list(self._watchers):
+        watchers = list(self._watchers)
+        for watcher in watchers:
             watcher.cancel()
+        await asyncio.gather(*watchers, return_exceptions=True)  # none left pending on the loop
         self.core.shutdown()
 
     @property
     def admitted(self) -> int:
         return len(self._admitted)
+
+    @property
+    def tcp_connections(self) -> int:
+        """Open TCP connections, also those that never sent a handshake."""
+        return len(self._connections)
 
     def _admit(self, connection: ServerConnection, request: Request) -> Response | None:
         """Runs before the handshake completes: foreign browser origin, wrong token or too many
@@ -195,7 +217,7 @@ class BridgeServer:
                 text = await session.queue.get()
                 await connection.send(text)  # waits while the socket's buffer is full: backpressure
                 session.sent_messages += 1
-                session.sent_bytes += len(text)  # outbound frames are ASCII JSON: characters are bytes
+                session.sent_bytes += utf8_size(text)
         except ConnectionClosed:
             pass
         except Exception:  # never a silent dead sender: the client would just stop hearing us

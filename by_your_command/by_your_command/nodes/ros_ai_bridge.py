@@ -47,6 +47,10 @@ from by_your_command.ros.convert import ConversionError, from_dict, message_clas
 
 _QOS = {"stream": _qos.STREAM, "reliable": _qos.RELIABLE, "latched": _qos.LATCHED}
 STARTUP_TIMEOUT_S = 10.0
+# The server's own stop is bounded (open connections get close_timeout, 2 s); whatever is still
+# running after SERVER_STOP_TIMEOUT_S is cancelled, within STOP_TIMEOUT_S in all.
+SERVER_STOP_TIMEOUT_S = 4.0
+STOP_TIMEOUT_S = 5.0
 # ROS messages handed to the loop and not yet routed: beyond this the loop is hopelessly behind,
 # and further messages are counted as lost instead of growing the loop's queue without bound.
 MAX_IN_FLIGHT = 4096
@@ -343,7 +347,12 @@ class RosAiBridge(Node):
         for task in (self._diagnostics_task, self._summary_task):
             if task is not None:
                 task.cancel()
-        await self.server.stop()
+        try:
+            await asyncio.wait_for(self.server.stop(), SERVER_STOP_TIMEOUT_S)
+        finally:
+            # Nothing may stay pending when the loop stops: a task destroyed pending runs its
+            # cleanup at exit, without a loop ("Task was destroyed but it is pending!").
+            await _cancel_other_tasks()
 
     async def _publish_summary(self) -> None:
         """The latched summary, whenever it changed (checked every summary_period_s)."""
@@ -445,12 +454,20 @@ class RosAiBridge(Node):
         logging.getLogger("by_your_command.bridge").removeHandler(self._log_handler)
         if self._loop.is_running():
             try:
-                asyncio.run_coroutine_threadsafe(self._stop(), self._loop).result(5.0)
+                asyncio.run_coroutine_threadsafe(self._stop(), self._loop).result(STOP_TIMEOUT_S)
             except Exception as error:  # shutting down anyway; say why it was not clean
-                self.get_logger().warning(f"bridge server did not stop cleanly: {error}")
+                # repr: a timeout's message is empty, and "did not stop cleanly: " explains nothing
+                self.get_logger().warning(f"bridge server did not stop cleanly: {error!r}")
             self._loop.call_soon_threadsafe(self._loop.stop)
             self._thread.join(timeout=5.0)
         super().destroy_node()
+
+
+async def _cancel_other_tasks() -> None:
+    others = asyncio.all_tasks() - {asyncio.current_task()}
+    for task in others:
+        task.cancel()
+    await asyncio.gather(*others, return_exceptions=True)
 
 
 def _installed_or(path: str, file_name: str, parameter: str) -> Path:

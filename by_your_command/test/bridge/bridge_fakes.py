@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import asyncio
+import base64
+import os
+import socket
+import struct
 import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -104,3 +108,31 @@ async def eventually(condition: Any, timeout: float = 5.0, what: str = "") -> An
         if loop.time() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what or condition}")
         await asyncio.sleep(0.005)
+
+
+def raw_websocket(port: int) -> socket.socket:
+    """A WebSocket client on a bare socket, past the handshake: it sends what a test prebuilt
+    (allocating nothing, so the bridge's memory can be traced alone) and reads nothing."""
+    sock = socket.create_connection(("127.0.0.1", port))
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall(
+        f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode()
+    )
+    response = b""
+    while b"\r\n\r\n" not in response:
+        response += sock.recv(1)  # byte by byte: nothing after the response is consumed
+    assert response.startswith(b"HTTP/1.1 101 "), response
+    return sock
+
+
+def masked_text_frame(text: str) -> bytes:
+    """One client text frame (all-zero mask: the payload goes as is)."""
+    payload = text.encode()
+    if len(payload) < 126:
+        header = bytes([0x81, 0x80 | len(payload)])
+    elif len(payload) < 65_536:
+        header = bytes([0x81, 0x80 | 126]) + struct.pack(">H", len(payload))
+    else:
+        header = bytes([0x81, 0x80 | 127]) + struct.pack(">Q", len(payload))
+    return header + bytes(4) + payload

@@ -6,6 +6,8 @@ import json
 import os
 import queue
 import re
+import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -37,12 +39,14 @@ class Lines:
     def __init__(self, process: subprocess.Popen[str]) -> None:
         self.lines: list[str] = []
         self._queue: queue.Queue[str] = queue.Queue()
+        self.ended = threading.Event()  # the process closed its output: every line is in
         threading.Thread(target=self._pump, args=(process,), daemon=True).start()
 
     def _pump(self, process: subprocess.Popen[str]) -> None:
         assert process.stdout is not None
         for line in process.stdout:
             self.lines.append(line.rstrip("\n"))
+        self.ended.set()
 
     def find(self, pattern: str) -> re.Match[str] | None:
         return next((m for line in list(self.lines) if (m := re.search(pattern, line))), None)
@@ -52,6 +56,14 @@ class Lines:
 def bridge_node(
     namespace: str, env: dict[str, str] | None = None, params: tuple[str, ...] = ()
 ) -> Iterator[tuple[int, Lines]]:
+    with bridge_process(namespace, env, params) as (_, port, lines):
+        yield port, lines
+
+
+@contextmanager
+def bridge_process(
+    namespace: str, env: dict[str, str] | None = None, params: tuple[str, ...] = ()
+) -> Iterator[tuple[subprocess.Popen[str], int, Lines]]:
     args = [
         str(INSTALL_LIB / "ros_ai_bridge"),
         "--ros-args",
@@ -72,7 +84,7 @@ def bridge_node(
             what="bridge startup",
         )
         assert isinstance(match, re.Match), "\n".join(lines.lines)
-        yield int(match.group(1)), lines
+        yield process, int(match.group(1)), lines
 
 
 @pytest.mark.parametrize("library", ["roslibpy", "ours"])
@@ -143,6 +155,32 @@ def test_unauthorized_client_refused_and_diagnostics_published(ros_namespace: st
 
         values = wait_for(ours, timeout=20, what="diagnostics counting the refusal")
         assert values["clients"] == "0"
+
+
+def test_a_stop_with_idle_and_half_open_connections_is_clean(ros_namespace: str) -> None:
+    """A browser with the monitor page open holds idle TCP connections (no request yet): the stop
+    waited for their handshake timeout, then logged an empty reason and tasks destroyed pending."""
+    with bridge_process(ros_namespace) as (process, port, lines):
+        idle = socket.create_connection(("127.0.0.1", port))
+        half_open = socket.create_connection(("127.0.0.1", port))
+        half_open.sendall(b"GET / HTTP/1.1\r\n")  # the request never ends
+        # Connections are accepted in order: once a later one is answered, these two are accepted.
+        with socket.create_connection(("127.0.0.1", port)) as page:
+            page.sendall(b"GET /nothing-here HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            assert page.recv(64).startswith(b"HTTP/1.1 ")
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=30) == 0
+        assert lines.ended.wait(10)
+        output = "\n".join(lines.lines)
+        for sign in (
+            "did not stop cleanly",
+            "destroyed but it is pending",
+            "no running event loop",
+            "Traceback",
+        ):
+            assert sign not in output, output
+        idle.close()
+        half_open.close()
 
 
 def test_binding_all_interfaces_without_a_token_is_a_startup_error(ros_namespace: str) -> None:

@@ -139,6 +139,23 @@ def test_send_queue_is_bounded_in_bytes() -> None:
     assert queue.queued_bytes == 80
 
 
+def test_send_queue_counts_bytes_of_utf8_not_characters() -> None:
+    queue = SendQueue(max_messages=100, max_bytes=100)
+    assert not queue.put("€" * 40, "/text", False, 100)  # 40 characters, 120 bytes
+    assert queue.put("é" * 40, "/text", False, 100) and queue.queued_bytes == 80
+    assert queue.dropped == {"/text": 1}
+
+
+def test_status_replies_count_towards_the_queue_byte_bound() -> None:
+    queue = SendQueue(max_messages=100, max_bytes=1000, max_control_bytes=600)
+    assert queue.put("x" * 900, "/audio", False, 100)
+    assert not queue.put_control("s" * 200, "bad_request")  # within its own bound, not the queue's
+    assert queue.queued_bytes == 900
+    assert queue.take_nowait() is not None and queue.take_nowait() == "x" * 900  # summary, then data
+    assert queue.put_control("s" * 200, "bad_request") and queue.queued_bytes == 200
+    assert not queue.put("y" * 900, "/audio", False, 100)  # the queued reply takes its share
+
+
 def test_token_bucket() -> None:
     now = [0.0]
     bucket = TokenBucket(rate=10, burst=2, clock=lambda: now[0])
@@ -297,7 +314,7 @@ def test_request_ids_come_back_as_the_same_json_value() -> None:
 
 
 def test_refusals_never_echo_huge_client_strings() -> None:
-    core, _ = make_core()
+    core, _ = make_core(BridgeParams(port=0, inline_convert_bytes=1_000_000))  # all on this thread
     session = core.open_session("echo")
     huge = "t" * 200_000
     core.handle_frame(session, json.dumps({"op": "subscribe", "topic": huge}))

@@ -3,20 +3,24 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import logging
 import socket
+import tracemalloc
+import weakref
 from collections.abc import Coroutine
 from typing import Any
 
 import pytest
 import websockets
-from bridge_fakes import NAMESPACE, eventually, make_core, running_bridge
+from bridge_fakes import NAMESPACE, eventually, make_core, masked_text_frame, raw_websocket, running_bridge
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from by_your_command.bridge.client import BridgeClient, BridgeRefused, ClientOptions
 from by_your_command.bridge.config import BridgeParams
+from by_your_command.bridge.core import BridgeCore, ClientSession
 from by_your_command.bridge.server import BridgeServer
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
@@ -108,6 +112,32 @@ def test_bad_clients_get_errors_and_others_keep_being_served() -> None:
                 server.core.deliver(f"{NAMESPACE}/prompt_text", '{"data":"and here"}')
                 assert (await good.receive(5)).msg == {"data": "and here"}
                 assert graph.published == []
+
+    run(scenario())
+
+
+def test_a_frame_of_multibyte_characters_is_refused_by_its_bytes_on_every_path() -> None:
+    frame = '{"op":"publish","topic":"response_text","msg":{"data":"' + "€" * 600_000 + '"}}'
+    size = len(frame.encode())  # 1.8 MB in 600,058 characters: over the limit, under the hard one
+
+    async def scenario() -> None:
+        async with running_bridge(inline_convert_bytes=1000) as (server, graph):
+            held = "H" * 3000
+            graph.hold(held)
+            async with connect(url(server), compression=None) as client:
+                await client.send(frame)
+                replies = [json.loads(await client.recv())]
+                await client.send(
+                    json.dumps({"op": "publish", "topic": "response_text", "msg": {"data": held}})
+                )
+                await eventually(lambda: held in graph.converting, what="conversion running")
+                await client.send(frame)  # while its previous frame is on a worker
+                await client.send(frame.encode())  # the same bytes as a binary frame
+                replies += [json.loads(await client.recv()) for _ in range(2)]
+                graph.release(held)
+                await eventually(lambda: graph.published, what="the held publish")
+            assert [(r["code"], f"{size} bytes" in r["msg"]) for r in replies] == [("too_large", True)] * 3
+            assert [msg["data"] for _, msg in graph.published] == [held]
 
     run(scenario())
 
@@ -250,6 +280,37 @@ def test_concurrent_connects_never_exceed_max_clients() -> None:
     run(scenario())
 
 
+def test_stop_ends_idle_and_half_open_connections_instead_of_waiting_for_them() -> None:
+    """Browsers open TCP connections ahead of use; a request may never come on them. The stop
+    must end them itself: the handshake timeout is ten minutes here."""
+
+    async def scenario() -> None:
+        core, _ = make_core(BridgeParams(port=0, handshake_timeout_s=600))
+        server = BridgeServer(core, "")
+        await server.start()
+        loop = asyncio.get_running_loop()
+        idle = socket.create_connection(("127.0.0.1", server.port))
+        half_open = socket.create_connection(("127.0.0.1", server.port))
+        half_open.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # the request never ends
+        for sock in (idle, half_open):
+            sock.setblocking(False)
+        async with connect(url(server)) as client:
+            await eventually(lambda: server.tcp_connections == 3, what="all three accepted")
+            await server.stop()
+            with pytest.raises(ConnectionClosed) as closed:
+                await client.recv()
+            assert closed.value.rcvd is not None and closed.value.rcvd.code == 1001  # going away
+        for sock in (idle, half_open):
+            try:
+                assert await loop.sock_recv(sock, 1) == b""
+            except ConnectionResetError:
+                pass  # aborted: as closed as it gets
+            sock.close()
+        assert server.tcp_connections == 0
+
+    run(scenario())
+
+
 def test_hostile_numbers_get_a_status_error_not_a_closed_connection() -> None:
     async def scenario() -> None:
         async with running_bridge() as (server, _):
@@ -294,6 +355,136 @@ def test_a_client_that_never_reads_cannot_grow_the_bridge_with_refusals() -> Non
                 assert held <= 1000 * session.rejected  # a short reply each, never the 200 KB topic
                 flooding.cancel()
                 silent.transport.abort()  # it never reads: a polite close would wait for it
+
+    run(scenario())
+
+
+class TracedFrame(str):
+    """A frame whose lifetime a test can watch (a str subclass takes weak references)."""
+
+
+def without_cyclic_gc(test: Any) -> Any:
+    """Memory held in a reference cycle is freed whenever the cyclic GC happens to run: off, a leak
+    through a cycle is certain to show instead of now and then."""
+
+    def wrapper() -> None:
+        gc.disable()
+        try:
+            test()
+        finally:
+            gc.enable()
+
+    wrapper.__name__ = test.__name__
+    return wrapper
+
+
+async def handle_and_wait_until_freed(core: BridgeCore, session: ClientSession, request: object) -> None:
+    frame = TracedFrame(json.dumps(request))
+    alive = weakref.ref(frame)
+    core.handle_frame(session, frame)
+    del frame
+    await eventually(lambda: alive() is None, what=f"the frame of {str(request)[:40]} freed")
+
+
+@without_cyclic_gc
+def test_a_frame_converted_on_a_worker_is_freed_as_soon_as_it_is_handled() -> None:
+    pad = "a" * 10_000
+
+    async def scenario() -> None:
+        core, graph = make_core(BridgeParams(port=0, inline_convert_bytes=100))  # every frame on a worker
+        session = core.open_session("hostile")
+        try:
+            for request in (
+                {"op": "subscribe", "topic": pad},  # refused by the parser
+                {"op": "publish", "topic": "response_text", "msg": {"data": 7, "pad": pad}},  # by conversion
+                {"op": "subscribe", "topic": "no_such_topic", "pad": pad},  # by the allow-list
+                {"op": "publish", "topic": "response_text", "msg": {"data": pad}},  # published
+            ):
+                await handle_and_wait_until_freed(core, session, request)
+            assert session.rejected == 3 and len(graph.published) == 1
+        finally:
+            core.shutdown()
+
+    run(scenario())
+
+
+@without_cyclic_gc
+def test_a_client_that_never_reads_cannot_grow_the_bridge_with_large_refused_requests() -> None:
+    size = 1_000_000  # 80 of these, refused, held 50 MB in the bridge
+    params = {"rate_burst": 100_000, "pending_publish_bytes": 2 * size}
+
+    async def scenario() -> None:
+        async with running_bridge(**params) as (server, _):
+            loop = asyncio.get_running_loop()
+            silent = await loop.run_in_executor(None, raw_websocket, server.port)
+            await eventually(lambda: server.core.sessions, what="session")
+            session = server.core.sessions[0]
+            frame = masked_text_frame(json.dumps({"op": "subscribe", "topic": "a" * size}))
+
+            def flood() -> None:
+                for _ in range(80):
+                    silent.sendall(frame)
+
+            tracemalloc.start()
+            try:
+                flooding = loop.run_in_executor(None, flood)
+                await eventually(lambda: session.rejected == 80, timeout=30, what="80 refusals")
+                _, peak = tracemalloc.get_traced_memory()
+            finally:
+                tracemalloc.stop()
+                silent.close()
+            await flooding
+            # Frames waiting behind the one on a worker, that one and its parsed copy, the few
+            # websockets reads ahead, copies while decoding: about 9 frames' worth. Not every
+            # refused frame until the cyclic GC runs (all 80 here).
+            assert peak < params["pending_publish_bytes"] + 11 * size, peak
+
+    run(scenario())
+
+
+def test_a_paused_client_costs_its_pending_bound_and_a_few_frames_not_sixteen() -> None:
+    size = 1_000_000
+    params = {"inline_convert_bytes": 1000, "pending_publish_bytes": 2 * size}
+
+    async def scenario() -> None:
+        async with running_bridge(**params) as (server, graph):
+            loop = asyncio.get_running_loop()
+            pusher = await loop.run_in_executor(None, raw_websocket, server.port)
+            await eventually(lambda: server.core.sessions, what="session")
+            session = server.core.sessions[0]
+            [connection] = list(server._server.connections)  # type: ignore[union-attr]
+            held = "H" * size
+            graph.hold(held)
+            first = masked_text_frame(
+                json.dumps({"op": "publish", "topic": "response_text", "msg": {"data": held}})
+            )
+            frame = masked_text_frame(
+                json.dumps({"op": "publish", "topic": "response_text", "msg": {"data": "h" * size}})
+            )
+
+            def push() -> None:
+                try:
+                    pusher.sendall(first)
+                    for _ in range(40):
+                        pusher.sendall(frame)  # blocks once the bridge stops reading
+                except OSError:
+                    pass  # closed by the test
+
+            tracemalloc.start()
+            try:
+                pushing = loop.run_in_executor(None, push)
+                await eventually(lambda: not server.core.accepts_more(session), what="reading paused")
+                await eventually(lambda: not connection.transport.is_reading(), what="socket not read")
+                held_bytes, _ = tracemalloc.get_traced_memory()
+            finally:
+                tracemalloc.stop()
+                graph.release(held)
+                pusher.close()
+            await pushing
+            # Its waiting frames, the one converting and its parsed copy, the few frames websockets
+            # reads ahead, copies while decoding: about 9 frames' worth. websockets' default
+            # read-ahead alone is 16 frames (of up to 4x max_message_bytes each).
+            assert held_bytes < params["pending_publish_bytes"] + 11 * size, held_bytes
 
     run(scenario())
 
