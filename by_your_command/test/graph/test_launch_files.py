@@ -14,10 +14,9 @@ from pathlib import Path
 
 import pytest
 import yaml
-from byc_testing import wait_for
 from graph.graph_files import AGENT_CONFIGS
 from graph.launch_stand_in import Recorded, StandInLaunch, kind, stand_in_modules
-from graph.up_runner import pid_alive, stand_in_launch, wait_for_exit
+from graph.up_runner import pid_alive, stand_in_launch, wait_for_exit, wait_vad_ready
 
 from by_your_command.graph.model import Graph
 from by_your_command.graph.options import parse_options
@@ -210,14 +209,7 @@ def test_ctrl_c_under_launch_stops_every_process_in_order(ros_namespace: str, tm
         "file_audio_publisher.rate_factor:=3.0",
     ]
     with stand_in_launch("byc", *words) as running:
-        wait_for(
-            lambda: (
-                any("VAD ready" in line for line in running.lines_of("silero_vad_node"))
-                or running.check_running()
-            ),
-            timeout=30,
-            what="the VAD to be ready",
-        )
+        wait_vad_ready(running)
         children = running.children()
         assert set(children) == VOICE_NODES
         os.killpg(running.process.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole group

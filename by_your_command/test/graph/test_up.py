@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 from byc_testing import wait_for
-from graph.up_runner import byc_up, pid_alive, wait_for_exit
+from graph.up_runner import byc_up, pid_alive, wait_for_exit, wait_vad_ready
 
 from by_your_command.cli import up
 
@@ -66,14 +66,7 @@ def test_up_runs_the_graph_and_stops_everything_on_ctrl_c(ros_namespace: str, tm
 @pytest.mark.ros
 def test_a_dying_node_stops_the_others_and_is_named(ros_namespace: str, tmp_path: Path) -> None:
     with byc_up(*voice_only(ros_namespace, tmp_path)) as running:
-        wait_for(
-            lambda: (
-                any("VAD ready" in line for line in running.lines_of("silero_vad_node"))
-                or running.check_running()
-            ),
-            timeout=30,
-            what="the VAD to be ready",
-        )
+        wait_vad_ready(running)
         children = running.children()
         os.kill(children["silero_vad_node"], signal.SIGKILL)
         status = wait_for_exit(running)

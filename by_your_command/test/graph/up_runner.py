@@ -61,6 +61,15 @@ def pid_alive(pid: int) -> bool:
     return True
 
 
+def wait_vad_ready(up: UpProcess) -> None:
+    """Until the VAD says it is ready (or a process of the graph died: check_running raises)."""
+    wait_for(
+        lambda: any("VAD ready" in line for line in up.lines_of("silero_vad_node")) or up.check_running(),
+        timeout=30,
+        what="the VAD to be ready",
+    )
+
+
 def wait_for_exit(up: UpProcess, timeout: float = 30) -> int:
     status = up.process.wait(timeout=timeout)
     up._reader.join(5)
