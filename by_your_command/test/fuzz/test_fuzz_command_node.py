@@ -80,6 +80,22 @@ def test_injected_text_through_the_real_node_routes_only_allow_listed_commands(
             )
 
         wait_for(connected, timeout=60, what="command_processor discovered")
+        # Our side matching says nothing of the node's: a verdict it publishes before its writer
+        # matched our reader is lost. A warm-up line answered proves the way back.
+        tries = iter(range(1, 10_000))
+
+        def warmed_up() -> bool:
+            marker = f"warm-up {next(tries)}"
+            publisher.publish(String(data=marker))
+            for _ in range(25):
+                executor.spin_once(timeout_sec=0.02)
+                if any(v.raw == marker for v in received["command_status"]):
+                    return True
+            return False
+
+        wait_for(warmed_up, timeout=60, what="a verdict back from command_processor")
+        for messages in received.values():
+            messages.clear()
         with TALLY.input("command_processor node (injections)", count=len(INJECTIONS)):
             for text in [*INJECTIONS, SENTINEL]:
                 publisher.publish(String(data=text))
