@@ -20,13 +20,15 @@ from dataclasses import dataclass
 from by_your_command.agents.app_config import AppConfig
 from by_your_command.agents.app_providers import BuiltProvider, build_provider
 from by_your_command.agents.bridge_port import BridgePort
-from by_your_command.agents.config import AgentConfigError, instructions_for
-from by_your_command.agents.runtime import AgentFatal, AgentRuntime
+from by_your_command.agents.config import AgentConfig, AgentConfigError, instructions_for
+from by_your_command.agents.overlap_words import LocalTranscriber
+from by_your_command.agents.runtime import AgentFatal, AgentRuntime, Transcriber
 from by_your_command.bridge.client import BridgeClient, ClientOptions
 from by_your_command.prompts.library import PromptFileError, load_prompt_library
 from by_your_command.prompts.locate import ConfigFileNotFound
 from by_your_command.prompts.located_yaml import ConfigError
 from by_your_command.stop_signals import StopRequests, StopVerdict
+from by_your_command.vad.spoken_wake import RecognizerUnavailableError
 
 log = logging.getLogger(__name__)
 
@@ -71,13 +73,39 @@ def prepare(app: AppConfig, environ: Mapping[str, str]) -> PreparedAgent:
     return PreparedAgent(app, instructions, provider, environ.get(app.bridge.token_env, "").strip())
 
 
+def _barge_in_transcriber(config: AgentConfig) -> Transcriber | None:
+    """The local recogniser that tells words from backchannels over the robot's voice, when a
+    barge-in can happen and needs words; without pocketsphinx, the speech's length alone decides."""
+    if not config.barge_in or config.min_barge_in_words <= 0:
+        return None
+    try:
+        local = LocalTranscriber(config.backchannels)
+    except RecognizerUnavailableError as error:
+        log.warning("agent %s: barge-in judged on speech length only: %s", config.agent_id, error)
+        return None
+
+    one_at_a_time = asyncio.Lock()  # one decoder: an earlier barge-in's decode may still run
+
+    async def transcribe(pcm: bytes, sample_rate: int) -> str:
+        async with one_at_a_time:
+            return await asyncio.to_thread(local, pcm, sample_rate)  # tens of ms: off the scheduler
+
+    return transcribe
+
+
 async def run_agent(prepared: PreparedAgent) -> int:
     """Run until SIGINT/SIGTERM (EXIT_STOPPED) or a fatal error (EXIT_FATAL)."""
     config = prepared.app.agent
     client = BridgeClient(prepared.app.bridge.url, ClientOptions(token=prepared.bridge_token))
     port = BridgePort(client, config)
     await port.setup()  # recorded by the client, sent at every (re)connect
-    runtime = AgentRuntime(config, prepared.instructions, port, prepared.provider.factory)
+    runtime = AgentRuntime(
+        config,
+        prepared.instructions,
+        port,
+        prepared.provider.factory,
+        transcriber=_barge_in_transcriber(config),
+    )
     log.info(
         "agent %s: role %s, provider %s (%s), bridge %s (%s)",
         config.agent_id,

@@ -1,11 +1,14 @@
 """When user speech over the robot's reply is a real barge-in (full duplex only).
 
-At the onset the player is cut at once (no round trip); the provider is told only once the speech
-proves real, so a cough or a knock resumes the reply instead of losing it:
-- confirmed: the user has spoken at least `min_barge_in_ms` (audio received for the utterance);
-- false: the utterance ended shorter than that, or `window_s` passed without that much speech.
-An empty transcript is only known after the turn was committed (and the provider's history already
-truncated), so it is counted and logged, not resumed: the history must match what was heard.
+At the speech onset the player pauses the reply at once (no provider round trip); the provider
+is told only once the speech proves real, and then the reply is cut at what the user heard. A
+cough, a knock or an "uh-huh" resumes the same reply where it paused. Proof, in that order:
+- speech: at least `min_ms` of it from the VAD's onset (the VAD's pre-roll and pauses do not
+  count: a 100 ms cough arrives with half a second of pre-roll);
+- words (when a local transcriber runs and `min_words` > 0): at least that many words that are
+  not backchannels ("uh-huh", "yeah", "okay": they mean "go on").
+It is false when the utterance ended without that proof (once its whole audio is transcribed), or
+when `window_s` passed without it. Pure: the runtime gathers the evidence.
 """
 
 from __future__ import annotations
@@ -15,6 +18,10 @@ from enum import Enum
 
 from by_your_command.agents.reply_audio import ReplyAudio
 
+# A transcript that never catches up with a talking user (a slow machine) cannot hold the reply
+# paused for ever: past this many windows the barge-in is judged on what is known.
+WINDOWS_BEFORE_GIVING_UP = 2
+
 
 class Verdict(Enum):
     WAIT = "wait"
@@ -22,18 +29,42 @@ class Verdict(Enum):
     FALSE = "false"
 
 
+@dataclass(frozen=True)
+class Rules:
+    min_ms: float
+    min_words: int  # 0: speech alone decides
+    window_s: float
+
+
+@dataclass(frozen=True)
+class Evidence:
+    speech_ms: float  # voiced speech heard since the onset
+    ended: bool  # the utterance ended
+    windows_passed: int  # whole windows since the onset (0, 1, or WINDOWS_BEFORE_GIVING_UP)
+    words: int | None  # interrupting words in the latest transcript (None: none yet, or no transcriber)
+    transcript_current: bool  # that transcript covers all the audio received
+
+
 @dataclass
 class PendingBargeIn:
     reply: ReplyAudio
-    stream_id: str  # the stream that was cut
+    stream_id: str  # the stream that was paused
     started_at: float
+    words: int | None = None  # interrupting words in the latest transcript
+    transcribed_bytes: int = 0  # of the turn's audio, what that transcript covers
+    transcribing: bool = False
+    transcriber_failed: bool = False  # then the speech's length alone decides
+    windows_judged: int = 0  # windows that had passed when it was last judged (its deadline)
 
 
-def judge(
-    speech_ms: float, utterance_ended: bool, elapsed_s: float, min_ms: float, window_s: float
-) -> Verdict:
-    if speech_ms >= min_ms:
+def judge(evidence: Evidence, rules: Rules) -> Verdict:
+    over = evidence.ended or evidence.windows_passed >= 1
+    if evidence.speech_ms < rules.min_ms:
+        return Verdict.FALSE if over else Verdict.WAIT
+    if rules.min_words <= 0:
         return Verdict.CONFIRMED
-    if utterance_ended or elapsed_s >= window_s:
+    if evidence.words is not None and evidence.words >= rules.min_words:
+        return Verdict.CONFIRMED
+    if over and (evidence.transcript_current or evidence.windows_passed >= WINDOWS_BEFORE_GIVING_UP):
         return Verdict.FALSE
     return Verdict.WAIT

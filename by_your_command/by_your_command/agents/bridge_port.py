@@ -28,12 +28,19 @@ from by_your_command.agents.inputs import (
     PlaybackStatus,
     PromptText,
     RobotInput,
+    SafetyStop,
     SharedTurn,
     UtteranceChunk,
     VoiceActivity,
 )
 from by_your_command.agents.metrics import MetricsRecord
-from by_your_command.agents.port import DetectionReport, PortClosed, PortUnavailable, VoiceChunk
+from by_your_command.agents.port import (
+    DetectionReport,
+    PlayerAction,
+    PortClosed,
+    PortUnavailable,
+    VoiceChunk,
+)
 from by_your_command.agents.provider import Role
 from by_your_command.bridge.client_messages import BridgeUnavailable, ClientStopped, Delivery, Lost
 
@@ -93,6 +100,7 @@ def _utterance(msg: dict[str, Any]) -> RobotInput:
         _field(msg, "utterance_id", int, 0),
         _field(msg, "chunk_sequence", int, 0),
         _field(msg, "is_utterance_end", bool, False),
+        _field(msg, "unvoiced_samples", int, 0),
     )
 
 
@@ -105,6 +113,7 @@ def _playback(msg: dict[str, Any]) -> RobotInput:
         _field(msg, "finished", bool, False),
         _field(msg, "interrupted", bool, False),
         _field(msg, "starved", bool, False),
+        _field(msg, "paused", bool, False),
     )
 
 
@@ -163,6 +172,7 @@ class BridgePort:
         self._add(topics.camera, IMAGE, _image)
         self._add(topics.command_status, VERDICT, _verdict)
         self._add(topics.conversation_reset, STRING, lambda msg: ConversationReset(_field(msg, "data", str)))
+        self._add(topics.safety_stop, STRING, lambda msg: SafetyStop(_field(msg, "data", str)[:200]))
         if config.context_source is ContextSource.SHARED:  # the conversation agent's turns
             self._add(
                 topics.prompt_transcript, STRING, lambda msg: SharedTurn(Role.USER, _field(msg, "data", str))
@@ -245,8 +255,10 @@ class BridgePort:
     async def publish_command_request(self, request_id: str, text: str) -> None:
         await self._publish(self._topics.command_request, {"request_id": request_id, "text": text})
 
-    async def publish_interruption(self, stream_id: str, reason: str, stamp: float) -> None:
-        msg = {"header": _stamp(stamp), "stream_id": stream_id, "reason": reason}
+    async def publish_interruption(
+        self, stream_id: str, reason: str, stamp: float, action: PlayerAction = PlayerAction.CUT
+    ) -> None:
+        msg = {"header": _stamp(stamp), "stream_id": stream_id, "reason": reason, "action": int(action)}
         await self._publish(self._topics.interruption_signal, msg)
 
     async def publish_transcript(self, text: str) -> None:

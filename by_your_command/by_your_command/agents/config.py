@@ -18,6 +18,13 @@ import yaml
 
 from by_your_command.prompts.library import PromptLibrary
 
+# Listening noises and fillers: "uh-huh" over the robot's voice means "go on", not "stop".
+DEFAULT_BACKCHANNELS = (
+    "uh huh", "uh-huh", "mm hm", "mm-hm", "mhm", "hmm", "mm", "yeah", "yep", "okay", "ok", "right",
+    "i see", "got it", "sure", "alright", "uh", "um", "oh", "ah", "wow", "cool", "nice",
+)  # fmt: skip
+MAX_BACKCHANNELS = 200
+
 
 class AgentRole(str, Enum):
     CONVERSATION = "conversation"  # speaks; the authority of the shared transcript
@@ -48,6 +55,7 @@ class Topics:
     camera: str = "camera_forwarded"
     command_status: str = "command_status"
     conversation_reset: str = "conversation_reset"
+    safety_stop: str = "safety_stop"  # the VAD heard a stop phrase itself (the stop is already routed)
     response_voice: str = "response_voice"
     response_text: str = "response_text"
     response_cmd: str = "response_cmd"
@@ -73,9 +81,16 @@ class AgentConfig:
     # turn-taking
     utterance_idle_s: float = 2.0  # an utterance with no chunk for this long is closed (lost end marker)
     reply_timeout_s: float = 20.0  # no provider event for this long while a reply is due: turn failed
-    # barge-in (full duplex only)
-    min_barge_in_ms: int = 400  # user speech shorter than this is not a barge-in (cough, knock)
-    barge_in_window_s: float = 1.5  # onset without that much speech within this window: resume
+    # barge-in (full duplex only; docs/agents.md "Interruptions"): the reply pauses at the onset and
+    # is cut only when the speech proves real, else it resumes where it paused
+    min_barge_in_ms: int = 400  # speech from the VAD's onset (pre-roll, pauses not counted) shorter: noise
+    # ...and, heard by the local recogniser, at least this many words that are not backchannels
+    # (0: duration alone decides; also when pocketsphinx is missing, with a warning). Two, because
+    # the recogniser often hears a lone "uh-huh" as one everyday word; "stop" alone is the safety
+    # stop's to hear (docs/vad_and_wake.md)
+    min_barge_in_words: int = 2
+    backchannels: tuple[str, ...] = DEFAULT_BACKCHANNELS  # said over the robot, they never interrupt
+    barge_in_window_s: float = 1.5  # onset without that much proof within this window: resume
     # session cycling
     pause_timeout_s: float = 2.0  # bench_billing: each exchange bills about this much extra
     max_session_s: float = 3600.0  # also capped by the provider's own limit
@@ -140,6 +155,11 @@ def _convert(path: str, hint: Any, value: Any, problems: list[str]) -> Any:
             problems.append(f"{path}: must be a number, got {value!r}")
             return None
         return float(value)
+    if hint == tuple[str, ...]:
+        if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
+            problems.append(f"{path}: must be a list of strings, got {value!r}")
+            return None
+        return tuple(value)
     if hint is int or hint is str or hint is bool:
         if type(value) is not hint:
             problems.append(f"{path}: must be {hint.__name__}, got {type(value).__name__} {value!r}")
@@ -188,6 +208,12 @@ def parse_agent_config(data: Any, source: str = "agent config") -> AgentConfig:
     if config is not None:
         if config.min_barge_in_ms < 0:
             problems.append(f"min_barge_in_ms: must be >= 0, got {config.min_barge_in_ms}")
+        if not 0 <= config.min_barge_in_words <= 20:
+            problems.append(f"min_barge_in_words: must be within 0..20, got {config.min_barge_in_words}")
+        if len(config.backchannels) > MAX_BACKCHANNELS or any(
+            not phrase.strip() or len(phrase) > 40 for phrase in config.backchannels
+        ):
+            problems.append(f"backchannels: at most {MAX_BACKCHANNELS} phrases of 1..40 characters")
         if not 0 <= config.frame_lead_s <= config.max_frame_age_s:
             problems.append(f"frame_lead_s: must be within 0..max_frame_age_s, got {config.frame_lead_s}")
         if config.backoff_initial_s > config.backoff_max_s:

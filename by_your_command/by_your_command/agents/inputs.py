@@ -24,6 +24,9 @@ class UtteranceChunk:
     utterance_id: int
     chunk_sequence: int
     is_end: bool
+    # Of the utterance up to the end of this chunk, samples the VAD did not judge speech (pre-roll,
+    # pauses); 0 from a VAD that does not say. Speech heard = samples received - this.
+    unvoiced_samples: int = 0
 
 
 @dataclass(frozen=True)
@@ -51,6 +54,7 @@ class PlaybackStatus:
     finished: bool = False
     interrupted: bool = False
     starved: bool = False
+    paused: bool = False  # held by our pause (a barge-in being judged)
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,14 @@ class ConversationReset:
 
 
 @dataclass(frozen=True)
+class SafetyStop:
+    """The robot heard a stop phrase itself (`safety_stop`): the stop command is already routed and
+    every reply cut; the agent drops what it was saying and tells the model."""
+
+    phrase: str
+
+
+@dataclass(frozen=True)
 class SharedTurn:
     """A turn of the shared transcript published by the conversation agent (dual mode)."""
 
@@ -114,4 +126,5 @@ RobotInput = (
     | InputLost
     | ConversationReset
     | SharedTurn
+    | SafetyStop
 )

@@ -86,6 +86,7 @@ class Counters:
     ignored_not_awake: int = 0  # utterances / texts not sent while asleep or muted
     barge_ins: int = 0
     false_barge_ins: int = 0
+    safety_stops: int = 0  # the robot heard "stop" itself (safety_stop): reply cut
     empty_transcripts: int = 0
     publish_failures: int = 0
     provider_errors: int = 0

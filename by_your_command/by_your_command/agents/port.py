@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
+from enum import IntEnum
 from typing import Protocol
 
 from by_your_command.agents.detections import Detection, FrameInfo
@@ -35,6 +36,14 @@ class VoiceChunk:
     stamp: float = 0.0  # wall-clock seconds of the first sample (synthesis time)
 
 
+class PlayerAction(IntEnum):
+    """Interruption.action: what the player does to the reply named."""
+
+    CUT = 0
+    PAUSE = 1
+    RESUME = 2
+
+
 @dataclass(frozen=True)
 class DetectionReport:
     """Object detections from one reply, with the frame the model was shown (None: no frame)."""
@@ -56,8 +65,10 @@ class RobotPort(Protocol):
     async def publish_command_request(self, request_id: str, text: str) -> None:
         """`command_request`: commands whose verdicts come back on `command_status` with this id."""
 
-    async def publish_interruption(self, stream_id: str, reason: str, stamp: float) -> None:
-        """`interruption_signal`: cut `stream_id` at the player now."""
+    async def publish_interruption(
+        self, stream_id: str, reason: str, stamp: float, action: PlayerAction = PlayerAction.CUT
+    ) -> None:
+        """`interruption_signal`: cut (or pause, or resume) `stream_id` at the player now."""
 
     async def publish_transcript(self, text: str) -> None:
         """`prompt_transcript`: what the user said."""

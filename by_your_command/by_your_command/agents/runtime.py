@@ -12,11 +12,19 @@ import asyncio
 import logging
 import secrets
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass
 from functools import partial
+from typing import Any
 
-from by_your_command.agents.barge_in import PendingBargeIn, Verdict, judge
+from by_your_command.agents.barge_in import (
+    WINDOWS_BEFORE_GIVING_UP,
+    Evidence,
+    PendingBargeIn,
+    Rules,
+    Verdict,
+    judge,
+)
 from by_your_command.agents.clock import Clock, LoopClock
 from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
 from by_your_command.agents.context import ContextStore
@@ -47,15 +55,17 @@ from by_your_command.agents.inputs import (
     PlaybackStatus,
     PromptText,
     RobotInput,
+    SafetyStop,
     SharedTurn,
     UtteranceChunk,
     VoiceActivity,
 )
 from by_your_command.agents.metrics import Counters, SessionMetrics, SessionOpenedMetrics, TurnMetrics
 from by_your_command.agents.outbox import Outbox
-from by_your_command.agents.port import DetectionReport, PortClosed, RobotPort, VoiceChunk
+from by_your_command.agents.overlap_words import interrupting_words
+from by_your_command.agents.port import DetectionReport, PlayerAction, PortClosed, RobotPort, VoiceChunk
 from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup
-from by_your_command.agents.reply_audio import ReplyAudio, pieces
+from by_your_command.agents.reply_audio import ReplyAudio
 from by_your_command.agents.robot_tool import (
     ROBOT_COMMAND_TOOL,
     TOOL_NAME,
@@ -92,6 +102,11 @@ MAX_FRAME_BYTES = 4 * 1024 * 1024
 INPUT_BACKLOG = 256  # robot inputs queued before the pump stops reading (back-pressure to the bridge)
 RECENT_UTTERANCES = 32  # closed utterance ids remembered, to tell late chunks from new utterances
 RECENT_CUTS = 64  # cut responses remembered (their late audio and words are dropped); bounded
+# What the model reads in its history after the robot heard "stop" itself (the safety stop).
+SAFETY_STOP_NOTE = (
+    '"{phrase}" (the robot heard this itself and stopped at once: every motion command was '
+    'stopped and the reply cut; it said "Stopping.")'
+)
 # A tool call's command is routed once the provider events queued behind it are handled (a
 # cancellation may be among them), but never held behind more than this many.
 MAX_ROUTE_DEFERRALS = 64
@@ -105,8 +120,22 @@ class _Stop:
     pass
 
 
+@dataclass(frozen=True)
+class _Heard:
+    """What the local transcriber heard of a barge-in's audio (None: it failed)."""
+
+    barge: PendingBargeIn
+    text: str | None
+    covered_bytes: int
+
+
 _STOP = _Stop()
-_Item = RobotInput | SessionMessage | _Stop
+_Item = RobotInput | SessionMessage | _Heard | _Stop
+# Items the scheduler made itself (or its sessions did): they hold no place in the input backlog.
+_OWN_ITEMS = (SessionOpened, SessionEvent, SessionFailed, _Heard)
+
+# pcm (int16 LE) and its rate -> the words heard (the app runs the recogniser on a worker thread)
+Transcriber = Callable[[bytes, int], Awaitable[str]]
 
 
 @dataclass(frozen=True)
@@ -124,8 +153,16 @@ class AgentRuntime:
         port: RobotPort,
         provider_factory: ProviderFactory,
         clock: Clock | None = None,
+        transcriber: Transcriber | None = None,
     ) -> None:
         self.config = config
+        # Words of the speech over a reply (barge-in proof); None: its length alone decides.
+        self._transcriber = transcriber if config.min_barge_in_words > 0 else None
+        self._barge_rules = Rules(
+            config.min_barge_in_ms,
+            config.min_barge_in_words if self._transcriber is not None else 0,
+            config.barge_in_window_s,
+        )
         self._instructions = instructions
         self._port = port
         self._factory = provider_factory
@@ -176,6 +213,7 @@ class AgentRuntime:
         self._close_asked_at = 0.0  # when either was set: the session deadline is due from then on
         self._session_conversation = 0  # the conversation (context.serial) the session serves
         self._spins = 0
+        self._tasks: set[asyncio.Task[None]] = set()  # our own background work (transcriptions)
 
     # --- public ------------------------------------------------------------------------------
 
@@ -212,9 +250,7 @@ class AgentRuntime:
                         "agent %s: error handling %s (went on)", self.config.agent_id, type(item).__name__
                     )
                 finally:
-                    if item is not None and not isinstance(
-                        item, (SessionOpened, SessionEvent, SessionFailed)
-                    ):
+                    if item is not None and not isinstance(item, _OWN_ITEMS):
                         self._input_room.release()
             if self._port_error:
                 raise AgentFatal(self._port_error)
@@ -223,7 +259,9 @@ class AgentRuntime:
             raise
         finally:
             pump.cancel()
-            await asyncio.gather(pump, return_exceptions=True)
+            for task in self._tasks:
+                task.cancel()
+            await asyncio.gather(pump, *self._tasks, return_exceptions=True)
             if self._session is not None:
                 await self._close_session("agent stopped")
             await self._outbox.close(self.config.publish_timeout_s)
@@ -301,9 +339,7 @@ class AgentRuntime:
         if out is not None and not out.tool_calls_open:
             found.append(_Deadline(self._awaited_at + c.reply_timeout_s, "reply", self._reply_timed_out))
         if self._barge is not None:
-            found.append(
-                _Deadline(self._barge.started_at + c.barge_in_window_s, "barge-in", self._judge_barge)
-            )
+            found.append(_Deadline(self._barge_deadline(self._barge), "barge-in", self._judge_barge))
         tool_deadline = self._tools.next_deadline()
         if tool_deadline is not None:
             found.append(_Deadline(tool_deadline, "tool verdict", self._tool_verdicts_late))
@@ -336,9 +372,13 @@ class AgentRuntime:
 
     # --- dispatch ----------------------------------------------------------------------------
 
-    async def _handle(self, item: RobotInput | SessionMessage) -> None:
+    async def _handle(self, item: RobotInput | SessionMessage | _Heard) -> None:
         if isinstance(item, (SessionOpened, SessionEvent, SessionFailed)):
             await self._on_session_message(item)
+        elif isinstance(item, _Heard):
+            await self._on_heard(item)
+        elif isinstance(item, SafetyStop):
+            await self._on_safety_stop(item)
         elif isinstance(item, UtteranceChunk):
             await self._on_chunk(item)
         elif isinstance(item, VoiceActivity):
@@ -437,7 +477,9 @@ class AgentRuntime:
         if chunk.sample_rate != turn.resampler.from_rate:
             self.counters.inputs_invalid += 1
             return
-        self._append_audio(turn, turn.resample(chunk.pcm, chunk.sample_rate, chunk.is_end))
+        self._append_audio(
+            turn, turn.resample(chunk.pcm, chunk.sample_rate, chunk.is_end, chunk.unvoiced_samples)
+        )
         if first and self._session is not None:
             # After the question's first audio (Gemini opens the user's activity with it), so the
             # frame is part of the question. Only a frame from the question's time goes now: an
@@ -450,6 +492,7 @@ class AgentRuntime:
             await self._end_utterance(turn)
         elif self._barge is not None and self._barge_turn is turn:
             await self._judge_barge()
+            self._hear_barge_in()
 
     def _append_audio(self, turn: Turn, pcm: bytes) -> None:
         turn.add_audio(pcm)
@@ -468,8 +511,13 @@ class AgentRuntime:
             self._closed_utterances.append(turn.utterance_id)
         if self._barge is not None and self._barge_turn is turn:
             await self._judge_barge()
-            if turn.held:  # judged false: the turn was noise, never sent
+            self._hear_barge_in()  # the whole utterance, when its transcript is still wanted
+            if turn.held:  # judged false, or still being judged: not sent (yet)
                 return
+        self._utterance_complete(turn)
+
+    def _utterance_complete(self, turn: Turn) -> None:
+        """An ended utterance that is the user's turn: its frame if none went yet, then its commit."""
         session = self._session
         if session is not None and self._asked_turn != turn.number and not turn.deferred:
             # no frame came while the question was spoken: an older one (fresh enough) is better
@@ -670,46 +718,112 @@ class AgentRuntime:
             and not reply.cut
             and reply.is_playing(now)
         ):
-            # Cut the player first: no provider round trip between the user's voice and silence.
-            stamp = self._clock.wall()
-            self._outbox.discard_stream(reply.stream_id)
-            self._publish(
-                "interruption_signal",
-                partial(self._port.publish_interruption, reply.stream_id, "barge_in", stamp),
-            )
+            # Pause the player first: no provider round trip between the user's voice and silence.
+            # Its audio keeps flowing to the player, which holds it: a false barge-in resumes the
+            # same stream, so nothing is re-sent and played_ms stays that of the whole reply.
+            self._player(reply.stream_id, "barge_in", PlayerAction.PAUSE)
             self.counters.barge_ins += 1
             self._barge = PendingBargeIn(reply, reply.stream_id, now)
             self._barge_turn = None
             log.info(
-                "agent %s: barge-in on %s at %d ms", self.config.agent_id, reply.stream_id, reply.played_ms()
+                "agent %s: speech over %s: paused at ~%d ms",
+                self.config.agent_id,
+                reply.stream_id,
+                reply.heard_ms(now),
             )
         self._ensure_session()  # the connect hides behind the utterance that follows
+
+    def _barge_deadline(self, barge: PendingBargeIn) -> float:
+        """The end of the next window the judge has not seen yet (a fixed time: see _windows_passed)."""
+        return barge.started_at + (barge.windows_judged + 1) * self.config.barge_in_window_s
+
+    def _windows_passed(self, barge: PendingBargeIn) -> int:
+        """0 within the window, 1 after it (a transcript still coming may be waited for), then
+        WINDOWS_BEFORE_GIVING_UP: the same sums as the deadline, so a due deadline always sees it."""
+        now, window = self._clock.now(), self.config.barge_in_window_s
+        if now >= barge.started_at + WINDOWS_BEFORE_GIVING_UP * window:
+            return WINDOWS_BEFORE_GIVING_UP
+        return 1 if now >= barge.started_at + window else 0
+
+    def _hear_barge_in(self) -> None:
+        """Transcribe the held speech (off the loop) when its words can still decide the barge-in."""
+        barge, turn = self._barge, self._barge_turn
+        if barge is None or turn is None or self._transcriber is None or barge.transcribing:
+            return
+        if len(turn.audio) <= barge.transcribed_bytes or turn.voiced_ms < self.config.min_barge_in_ms:
+            return  # nothing new, or too little speech to be a barge-in whatever it says
+        assert turn.resampler is not None
+        pcm, rate = bytes(turn.audio), turn.resampler.to_rate
+        barge.transcribing = True
+        transcriber = self._transcriber
+
+        async def transcribe() -> None:
+            text: str | None
+            try:
+                text = await transcriber(pcm, rate)
+            except Exception as error:  # counted and logged here; the verdict then rests on length
+                self.counters.internal_errors += 1
+                log.error("agent %s: barge-in transcription failed: %r", self.config.agent_id, error)
+                text = None
+            self._queue.put_nowait(_Heard(barge, text, len(pcm)))
+
+        self._background(transcribe(), "barge-in transcription")
+
+    async def _on_heard(self, heard: _Heard) -> None:
+        barge = heard.barge
+        barge.transcribing = False
+        if self._barge is not barge:
+            return  # judged meanwhile
+        barge.transcribed_bytes = heard.covered_bytes
+        if heard.text is None:
+            barge.words = None
+            barge.transcriber_failed = True
+        else:
+            words = interrupting_words(heard.text, self.config.backchannels)
+            barge.words = len(words)
+            log.info(
+                "agent %s: over the reply: %r (%d interrupting word(s))",
+                self.config.agent_id,
+                heard.text,
+                len(words),
+            )
+        turn = self._barge_turn
+        await self._judge_barge()
+        self._hear_barge_in()
+        if turn is not None and self._barge is None and turn.ended and not turn.held:
+            self._utterance_complete(turn)  # confirmed after the utterance ended
 
     async def _judge_barge(self) -> None:
         barge = self._barge
         if barge is None:
             return
         turn = self._barge_turn
-        verdict = judge(
-            turn.speech_ms if turn is not None else 0.0,
+        rules = self._barge_rules
+        if barge.transcriber_failed:
+            rules = Rules(rules.min_ms, 0, rules.window_s)
+        evidence = Evidence(
+            turn.voiced_ms if turn is not None else 0.0,
             turn is not None and turn.ended,
-            self._clock.now() - barge.started_at,
-            self.config.min_barge_in_ms,
-            self.config.barge_in_window_s,
+            self._windows_passed(barge),
+            barge.words,
+            turn is not None and not barge.transcribing and barge.transcribed_bytes >= len(turn.audio),
         )
+        verdict = judge(evidence, rules)
         if verdict is Verdict.WAIT:
+            barge.windows_judged = evidence.windows_passed
             return
         self._barge = None
         self._barge_turn = None
         reply = barge.reply
         if verdict is Verdict.CONFIRMED:
-            reply.cut = True
-            self._cut.append(reply.response_id)
-            played = reply.played_ms()
-            if self._session is not None and self._session.serial == reply.session:
-                self._session.send(Interrupt(reply.response_id, reply.item_id, played))
+            heard = self._cut_reply(reply, "barge_in", barge.started_at)
             log.info(
-                "agent %s: barge-in confirmed; %s cut at %d ms", self.config.agent_id, barge.stream_id, played
+                "agent %s: barge-in confirmed (%.0f ms of speech, %s word(s)); %s cut at %d ms",
+                self.config.agent_id,
+                evidence.speech_ms,
+                "?" if evidence.words is None else evidence.words,
+                barge.stream_id,
+                heard,
             )
             if turn is not None:
                 turn.held = False
@@ -721,34 +835,69 @@ class AgentRuntime:
                 self._turn_in = None
                 if turn.utterance_id is not None:
                     self._closed_utterances.append(turn.utterance_id)
-            await self._resume(reply)
+            self._player(reply.stream_id, "false_barge_in", PlayerAction.RESUME)
+            log.info(
+                "agent %s: false barge-in (%.0f ms of speech, %s word(s)); %s resumed",
+                self.config.agent_id,
+                evidence.speech_ms,
+                "?" if evidence.words is None else evidence.words,
+                barge.stream_id,
+            )
         answered = self._turn_out
         if reply.generation_done and answered is not None and answered.number == reply.turn:
             await self._finish_turn(answered, "interrupted" if reply.cut else "completed")
 
-    async def _resume(self, reply: ReplyAudio) -> None:
-        """A false barge-in: play what the user did not hear, as a new stream."""
-        old = reply.stream_id
-        rest = reply.restart_stream(self._new_stream_id())
-        log.info(
-            "agent %s: false barge-in; resuming %s as %s from %d ms (%.2f s left)",
-            self.config.agent_id,
-            old,
-            reply.stream_id,
-            reply.played_ms(),
-            len(rest) / reply.bytes_per_s,
+    def _cut_reply(self, reply: ReplyAudio, reason: str, stopped_at: float) -> int:
+        """Cut `reply` at the player and in the model's memory, at what was heard by `stopped_at`."""
+        reply.cut = True
+        self._cut.append(reply.response_id)
+        heard = reply.heard_ms(stopped_at)
+        self._outbox.discard_stream(reply.stream_id)
+        self._player(reply.stream_id, reason, PlayerAction.CUT)
+        if self._session is not None and self._session.serial == reply.session:
+            self._session.send(Interrupt(reply.response_id, reply.item_id, heard))
+        return heard
+
+    def _player(self, stream_id: str, reason: str, action: PlayerAction) -> None:
+        stamp = self._clock.wall()
+        self._publish(
+            "interruption_signal",
+            partial(self._port.publish_interruption, stream_id, reason, stamp, action),
         )
-        for piece in pieces(rest, reply.sample_rate):
-            await self._publish_voice(reply, piece)
-        if reply.generation_done:
-            await self._end_stream(reply)
+
+    async def _on_safety_stop(self, stop: SafetyStop) -> None:
+        """The robot heard "stop" itself: the command is routed and the player cut already. Our
+        reply ends here (nothing more of it is published), the model's memory keeps only what was
+        heard, and the conversation says that the user stopped the robot."""
+        self.counters.safety_stops += 1
+        now = self._clock.now()
+        reply, barge = self._reply, self._barge
+        if barge is not None:  # the stop settles it: the reply is cut, the speech is the user's
+            self._barge = None
+            if self._barge_turn is not None:
+                self._barge_turn.held = False
+            self._barge_turn = None
+        cut = reply is not None and not reply.cut and reply.stream_started_at is not None
+        heard = self._cut_reply(reply, "safety_stop", now) if cut and reply is not None else 0
+        log.warning(
+            "agent %s: safety stop heard (%r)%s",
+            self.config.agent_id,
+            stop.phrase,
+            f": {reply.stream_id} cut at {heard} ms" if cut and reply is not None else "",
+        )
+        if self.config.context_source is ContextSource.OWN and not self._session_is_old_conversation():
+            self.context.add(Role.USER, SAFETY_STOP_NOTE.format(phrase=stop.phrase), now)
+        answered = self._turn_out
+        if cut and reply is not None and reply.generation_done and answered is not None:
+            if answered.number == reply.turn:
+                await self._finish_turn(answered, "interrupted")
 
     def _on_playback(self, status: PlaybackStatus) -> None:
         reply = self._reply
         if reply is not None and status.stream_id == reply.stream_id:
             reply.status = status
             reply.status_at = self._clock.now()
-            if status.speaking:
+            if status.speaking or status.paused:
                 self._last_activity = self._clock.now()
 
     # --- provider events ---------------------------------------------------------------------
@@ -840,10 +989,8 @@ class AgentRuntime:
         if reply.sample_rate != event.sample_rate:
             self.counters.inputs_invalid += 1
             return
-        reply.keep(event.pcm)
-        if self._barge is not None and self._barge.reply is reply:
-            return  # held while we find out whether the user really took the floor
-        await self._publish_voice(reply, event.pcm)
+        reply.received_bytes += len(event.pcm)
+        await self._publish_voice(reply, event.pcm)  # while paused, the player holds it
         if turn is not None and turn.first_audio_at is None:
             turn.first_audio_at = self._clock.now()
 
@@ -996,8 +1143,7 @@ class AgentRuntime:
         reply = self._reply
         if reply is not None and reply.response_id == done.response_id:
             reply.generation_done = True
-            barge = self._barge
-            if not reply.cut and not (barge is not None and barge.reply is reply):
+            if not reply.cut:
                 await self._end_stream(reply)
         if turn is None:
             return
@@ -1265,6 +1411,13 @@ class AgentRuntime:
         reply.ended_stream = True
         chunk = VoiceChunk(reply.stream_id, b"", reply.sample_rate, True, self._clock.wall())
         self._outbox.voice(reply.stream_id, 0, partial(self._port.publish_voice, chunk))
+
+    def _background(self, work: Coroutine[Any, Any, None], name: str) -> None:
+        """Run `work` beside the scheduler (it reports back through the queue; it catches its own
+        errors). Kept referenced until done, cancelled at stop."""
+        task = asyncio.create_task(work, name=f"{self.config.agent_id} {name}")
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
     def _publish(self, what: str, send: Callable[[], Awaitable[None]]) -> None:
         """Queued for the outbox's worker: the scheduler never waits on the bridge."""

@@ -25,7 +25,8 @@ class Turn:
     text: str = ""
     resampler: StreamResampler | None = None
     next_sequence: int = 0
-    speech_ms: float = 0.0  # user audio received (at its own rate)
+    received_ms: float = 0.0  # user audio received (at its own rate)
+    unvoiced_ms: float = 0.0  # of it, what the VAD did not judge speech (pre-roll, pauses)
     last_chunk_at: float = 0.0
     frame_since: float = float("-inf")  # frames that arrived before this show an earlier question
     audio: bytearray = field(default_factory=bytearray)  # at the provider's input rate
@@ -46,17 +47,26 @@ class Turn:
     def ended(self) -> bool:
         return self.ended_at is not None
 
+    @property
+    def voiced_ms(self) -> float:
+        """Speech heard from the VAD's onset on (all of it, from a VAD that does not say)."""
+        return max(0.0, self.received_ms - self.unvoiced_ms)
+
     def add_audio(self, pcm: bytes) -> None:
         if len(self.audio) + len(pcm) > self.keep_limit_bytes:
             self.replayable = False
             return
         self.audio += pcm
 
-    def resample(self, pcm: bytes, sample_rate: int, end: bool) -> bytes:
+    def resample(self, pcm: bytes, sample_rate: int, end: bool, unvoiced_samples: int = 0) -> bytes:
         """Our VAD's audio at the provider's rate (the resampler was made for this turn)."""
         assert self.resampler is not None
         samples = np.frombuffer(pcm, dtype="<i2")
-        self.speech_ms += 1000.0 * len(samples) / sample_rate
+        self.received_ms += 1000.0 * len(samples) / sample_rate
+        # the VAD's running count; never more than was received (a hostile publisher)
+        self.unvoiced_ms = min(
+            max(self.unvoiced_ms, 1000.0 * unvoiced_samples / sample_rate), self.received_ms
+        )
         out = self.resampler.push(samples)
         if end:
             out = np.concatenate([out, self.resampler.flush()])

@@ -5,6 +5,12 @@ driven by explicit timestamps so it can be tested without a clock. `PlayerLoop` 
 thread that feeds an `AudioSink` block by block. An interruption names what it cuts (a stream_id,
 or every reply that started up to a time); the cut replies' queues are flushed and, if one of them
 is in the sink, the sink drops its rest, so at most the block playing is heard, up to the cut.
+
+A reply can also be paused (an agent heard speech over it and is finding out whether it is a real
+interruption) and resumed: the sink drops what it holds of it, the unplayed rest goes back to the
+front of its queue, and played_ms goes on from where it stopped, so a later cut reports what the
+listener heard of the whole reply. Replies behind a paused one wait; a pause nobody resolves within
+`max_pause_ms` becomes a cut (the agent that paused it may be gone).
 """
 
 from __future__ import annotations
@@ -49,6 +55,12 @@ class PlayerConfig:
     status_rate_hz: float = field(default=10.0, metadata={"help": "playback_status rate while active"})
     max_queue_ms: int = field(default=300_000, metadata={"help": "queued audio beyond this is dropped"})
     max_chunk_ms: int = field(default=10_000, metadata={"help": "longer response_voice chunks are rejected"})
+    max_pause_ms: int = field(
+        default=5000,
+        metadata={
+            "help": "a reply paused (barge-in being judged) longer than this is cut: its agent is gone"
+        },
+    )
 
     def __post_init__(self) -> None:
         if self.sink not in ("device", "wav"):
@@ -67,6 +79,8 @@ class PlayerConfig:
             raise ValueError(f"max_queue_ms must be positive, got {self.max_queue_ms}")
         if self.max_chunk_ms <= 0:
             raise ValueError(f"max_chunk_ms must be positive, got {self.max_chunk_ms}")
+        if not 0 < self.max_pause_ms <= 60_000:
+            raise ValueError(f"max_pause_ms must be within 1..60000, got {self.max_pause_ms}")
 
     @property
     def block_samples(self) -> int:
@@ -118,6 +132,7 @@ class PlaybackState:
     finished: bool  # played to its end_of_stream
     interrupted: bool
     starved: bool = False  # ran dry before its end_of_stream: the next chunk is late
+    paused: bool = False  # held by a pause: its rest is kept until it is resumed or cut
 
 
 @dataclass(frozen=True)
@@ -134,6 +149,9 @@ class PlayerStats:
     chunks_dropped_closed: int = 0  # chunks of a reply that had ended or been left behind
     samples_dropped_overflow: int = 0
     interruptions: int = 0  # interruptions that cut something
+    pauses: int = 0  # pauses that held a reply
+    resumes: int = 0
+    pauses_expired: int = 0  # paused longer than max_pause_ms: cut
     streams_cut: int = 0
     streams_superseded: int = 0  # ran dry without end_of_stream while the next reply waited
     blocks_played: int = 0
@@ -202,6 +220,10 @@ class _Stream:
         self.ended = False  # end_of_stream received
         self.cut_at_ns: int | None = None
         self.frozen_played = 0  # samples heard before the cut
+        self.paused_at_ns: int | None = None
+        # Pieces put back at the front of the queue while one of its blocks was handed out and not
+        # yet in the sink: that block, if given back, goes after them (it comes later in the reply).
+        self.requeued_ahead = 0
 
     def take(self, count: int) -> Int16Array:
         parts: list[Int16Array] = []
@@ -324,16 +346,20 @@ class PlaybackEngine:
     # -- the player loop's side -------------------------------------------------------------
 
     def next_block(self) -> PlayBlock | None:
-        """The next block to play (≤ block_samples of one response), or None when nothing is queued."""
+        """The next block to play (≤ block_samples of one response), or None when nothing is queued
+        (or the reply in front is paused)."""
         with self._lock:
             while self._streams:
                 head = self._streams[0]
+                if head.paused_at_ns is not None:
+                    return None
                 if head.queued == 0 and not head.ended:
                     self._queue(head, head.resampler.flush())  # ran dry: release the held-back tail
                 if head.queued:
                     pcm = head.take(self.block_samples)
                     self._queued_total -= len(pcm)
                     head.started = True
+                    head.requeued_ahead = 0
                     self._current = self._pending = head
                     return PlayBlock(head.stream_id, pcm)
                 if not head.ended and len(self._streams) == 1:
@@ -347,9 +373,18 @@ class PlaybackEngine:
             return None
 
     def wants(self, block: PlayBlock) -> bool:
-        """False if the handed-out block's reply was cut since (then `give_back` drops it)."""
+        """False if the handed-out block's reply was cut (then `give_back` drops it), paused, or
+        had audio put back ahead of it since (then `give_back` requeues it in its place)."""
         with self._lock:
-            return self._pending is not None and self._pending.cut_at_ns is None
+            pending = self._pending
+            # Not if audio that comes before it in the reply was put back in its queue meanwhile
+            # (a pause, or a flush for another reply's cut): it is given back to go after that.
+            return (
+                pending is not None
+                and pending.cut_at_ns is None
+                and pending.paused_at_ns is None
+                and pending.requeued_ahead == 0
+            )
 
     def give_back(self, block: PlayBlock) -> None:
         """The sink did not take `block`: requeue it at the front of its reply, unless that was cut."""
@@ -357,10 +392,11 @@ class PlaybackEngine:
             stream, self._pending = self._pending, None
             if stream is None or stream.cut_at_ns is not None:
                 return
-            self._requeue(stream, block.pcm)
+            self._requeue(stream, block.pcm, after=stream.requeued_ahead)
 
-    def _requeue(self, stream: _Stream, pcm: Int16Array) -> None:
-        stream.queue.appendleft(pcm)
+    def _requeue(self, stream: _Stream, pcm: Int16Array, after: int = 0) -> None:
+        """Put `pcm` back at the front of its reply's queue (behind the first `after` pieces)."""
+        stream.queue.insert(min(after, len(stream.queue)), pcm)
         stream.queued += len(pcm)
         self._queued_total += len(pcm)
         if stream not in self._streams:
@@ -379,6 +415,9 @@ class PlaybackEngine:
             stream, self._pending = self._pending, None
             if stream is None or stream.cut_at_ns is not None:
                 return  # the loop checks `wants` first: only a misuse gets here
+            if stream.paused_at_ns is not None:  # paused between `wants` and the sink: play it later
+                self._requeue(stream, block.pcm, after=stream.requeued_ahead)
+                return
             end_ns = start_ns + len(block.pcm) * NS_PER_S // self.sample_rate
             # A device starts a block up to its latency after accepting it, so an entry may only be
             # forgotten once it ended well before the newest block starts.
@@ -424,6 +463,66 @@ class PlaybackEngine:
                 self.stats.streams_cut += len(targets)
             return CutOutcome(tuple(self._state(s, now_ns) for s in targets), flush)
 
+    def pause(self, stream_id: str, now_ns: int) -> tuple[PlaybackState | None, bool]:
+        """Hold `stream_id` where it is: (its state, or None if it is not playing or queued here;
+        whether the sink must drop what it holds). Replies behind it wait."""
+        with self._lock:
+            stream = self._known(stream_id)
+            if stream is None or stream.paused_at_ns is not None or self._finished(stream, now_ns):
+                return (None if stream is None else self._state(stream, now_ns)), False
+            stream.paused_at_ns = now_ns
+            flush = any(e.stream is stream and e.end_ns > now_ns for e in self._in_flight)
+            if flush:
+                self._stop_in_flight(now_ns)
+            if stream in self._streams:  # it goes first when resumed, before replies queued behind it
+                self._streams.remove(stream)
+            self._streams.appendleft(stream)
+            self._current = stream
+            self.stats.pauses += 1
+            return self._state(stream, now_ns), flush
+
+    def resume(self, stream_id: str, now_ns: int) -> PlaybackState | None:
+        """Go on with a paused `stream_id` from where it stopped (None: no such paused reply)."""
+        with self._lock:
+            stream = self._known(stream_id)
+            if stream is None or stream.paused_at_ns is None:
+                return None
+            stream.paused_at_ns = None
+            self.stats.resumes += 1
+            return self._state(stream, now_ns)
+
+    def expire_pauses(self, max_pause_ns: int, now_ns: int) -> CutOutcome:
+        """Cut every reply paused for longer than `max_pause_ns`."""
+        with self._lock:
+            expired = [
+                s.stream_id
+                for s in self._streams
+                if s.paused_at_ns is not None and now_ns - s.paused_at_ns > max_pause_ns
+            ]
+            self.stats.pauses_expired += len(expired)
+        cut: list[PlaybackState] = []
+        flush = False
+        for stream_id in expired:
+            outcome = self.interrupt(Cut(stream_id, reason="pause expired"), now_ns)
+            cut.extend(outcome.cut)
+            flush = flush or outcome.flush_sink
+        return CutOutcome(tuple(cut), flush)
+
+    def pause_deadline_ns(self, max_pause_ns: int) -> int | None:
+        """When the oldest pause expires (None: nothing paused)."""
+        with self._lock:
+            paused = [s.paused_at_ns for s in self._streams if s.paused_at_ns is not None]
+            return min(paused) + max_pause_ns if paused else None
+
+    def _known(self, stream_id: str) -> _Stream | None:
+        """The reply `stream_id` if it is queued or playing and was not cut."""
+        if not stream_id:
+            return None
+        for stream in (*self._streams, self._current, self._pending, *(e.stream for e in self._in_flight)):
+            if stream is not None and stream.stream_id == stream_id and stream.cut_at_ns is None:
+                return stream
+        return None
+
     def _stop_in_flight(self, now_ns: int) -> None:
         """The sink drops everything from now on: cut replies lose their rest, kept replies get
         theirs back at the front of their queue (a device may hold several blocks)."""
@@ -437,6 +536,8 @@ class PlaybackEngine:
             stream.play_end_ns = min(stream.play_end_ns, max(entry.start_ns, now_ns))
         for stream, rest in reversed(kept):
             self._requeue(stream, rest)
+            if stream is self._pending:
+                stream.requeued_ahead += 1
         self._in_flight.clear()
         self._play_end_ns = min(self._play_end_ns, now_ns)
 
@@ -452,6 +553,8 @@ class PlaybackEngine:
 
     def _speaking(self, now_ns: int) -> bool:
         pending = self._pending is not None and self._pending.cut_at_ns is None
+        if self._streams and self._streams[0].paused_at_ns is not None:
+            return now_ns < self._play_end_ns  # held: nothing more sounds until it is resumed
         return now_ns < self._play_end_ns or self._queued_total > 0 or pending
 
     def _played(self, stream: _Stream, now_ns: int) -> int:
@@ -470,6 +573,7 @@ class PlaybackEngine:
         return (
             stream.ended
             and stream.cut_at_ns is None
+            and stream.paused_at_ns is None
             and stream.queued == 0
             and stream is not self._pending
             and now_ns >= stream.play_end_ns
@@ -485,6 +589,7 @@ class PlaybackEngine:
             self._finished(stream, now_ns),
             stream.cut_at_ns is not None,
             dry and stream.started and not stream.ended and stream.cut_at_ns is None,
+            stream.paused_at_ns is not None and stream.cut_at_ns is None,
         )
 
     def status(self, now_ns: int) -> PlaybackState:
@@ -506,8 +611,9 @@ class PlayerLoop:
 
     `on_played(block, start_ns)` gets every block the sink accepted (the AEC reference);
     `on_change()` is called when the reported state changes (reply, speaking, finished, starved,
-    interrupted). An exception anywhere in the loop (sink, callbacks) is passed to `on_error`,
-    counted in `errors`, and the loop goes on after a short, growing pause.
+    interrupted, paused); `on_expired(outcome)` when paused replies were cut for waiting longer
+    than `max_pause_ns`. An exception anywhere in the loop (sink, callbacks) is passed to
+    `on_error`, counted in `errors`, and the loop goes on after a short, growing pause.
     """
 
     def __init__(
@@ -519,6 +625,8 @@ class PlayerLoop:
         clock_ns: Callable[[], int] = time.time_ns,
         idle_poll_s: float = 0.005,
         on_error: ErrorHandler = _log_error,
+        max_pause_ns: int = 5 * NS_PER_S,
+        on_expired: Callable[[CutOutcome], None] = lambda outcome: None,
     ) -> None:
         self.engine = engine
         self.sink = sink
@@ -528,6 +636,8 @@ class PlayerLoop:
         self._on_change = on_change
         self._on_error = on_error
         self._idle_poll_s = idle_poll_s
+        self._max_pause_ns = max_pause_ns
+        self._on_expired = on_expired
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._cancel = threading.Event()  # set by interrupt/stop: the block waiting for the sink is void
@@ -560,6 +670,23 @@ class PlayerLoop:
             self._cancel.clear()
         self._wake.set()
         return outcome
+
+    def pause(self, stream_id: str) -> PlaybackState | None:
+        """Hold `stream_id` at once (the sink drops what it holds of it); None: not here."""
+        self._cancel.set()
+        with self._handoff:
+            now = self.clock_ns()
+            state, flush = self.engine.pause(stream_id, now)
+            if flush:
+                self.sink.flush(now)
+            self._cancel.clear()
+        self._wake.set()
+        return state
+
+    def resume(self, stream_id: str) -> PlaybackState | None:
+        state = self.engine.resume(stream_id, self.clock_ns())
+        self._wake.set()
+        return state
 
     def stop(self) -> CutOutcome:
         """Stop playing (everything still playing or queued is cut) and close the sink."""
@@ -599,6 +726,7 @@ class PlayerLoop:
         while not self._stop.is_set():
             block = self.engine.next_block()
             if block is None:
+                self._expire_pauses()
                 self._report_changes()
                 self._wait_idle()
                 continue
@@ -612,9 +740,28 @@ class PlayerLoop:
             self._on_played(block, start_ns)
             self._report_changes()
 
+    def _expire_pauses(self) -> None:
+        deadline = self.engine.pause_deadline_ns(self._max_pause_ns)
+        if deadline is None or self.clock_ns() < deadline:
+            return
+        with self._handoff:
+            now = self.clock_ns()
+            outcome = self.engine.expire_pauses(self._max_pause_ns, now)
+            if outcome.flush_sink:
+                self.sink.flush(now)
+        if outcome.cut:
+            self._on_expired(outcome)
+
     def _report_changes(self) -> None:
         state = self.engine.status(self.clock_ns())
-        key = (state.stream_id, state.speaking, state.finished, state.interrupted, state.starved)
+        key = (
+            state.stream_id,
+            state.speaking,
+            state.finished,
+            state.interrupted,
+            state.starved,
+            state.paused,
+        )
         if key != self._reported:
             self._reported = key
             self._on_change()
@@ -623,7 +770,11 @@ class PlayerLoop:
         # While the last block plays out, wake at its end so speaking goes False on time. With
         # nothing playing, only new audio or a cut (both set _wake) changes anything: sleep long
         # (a 20 ms poll cost the idle player ~0.5 % of a core).
-        remaining_s = (self.engine.playing_until_ns() - self.clock_ns()) / NS_PER_S
+        now = self.clock_ns()
+        remaining_s = (self.engine.playing_until_ns() - now) / NS_PER_S
         timeout = min(self._idle_poll_s * 4, remaining_s) if remaining_s > 0 else IDLE_WAIT_S
+        pause_deadline = self.engine.pause_deadline_ns(self._max_pause_ns)
+        if pause_deadline is not None:  # wake when a pause expires
+            timeout = min(timeout, (pause_deadline - now) / NS_PER_S)
         self._wake.wait(max(timeout, 0.001))
         self._wake.clear()

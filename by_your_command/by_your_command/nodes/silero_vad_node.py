@@ -300,6 +300,7 @@ class SileroVadNode(Node):
             chunk_sequence=chunk.chunk_sequence,
             sample_rate=chunk.sample_rate,
             channels=1,
+            unvoiced_samples=chunk.unvoiced_samples,
         )
         msg.int16_data = int16_field(chunk.samples)
         return msg

@@ -1,4 +1,5 @@
-"""simple_audio_player: `response_voice` -> speaker (or a WAV sink), honoring `interruption_signal`.
+"""simple_audio_player: `response_voice` -> speaker (or a WAV sink), honoring `interruption_signal`
+(cut, or pause and resume: an agent pauses a reply while it judges speech over it).
 
 Publishes `assistant_speaking` (latched), `playback_status` (what was actually played, per
 response) and `audio_played` (each block as played, stamped with its play time: the AEC reference).
@@ -79,7 +80,13 @@ class SimpleAudioPlayerNode(Node):
         self._speaking_sent: bool | None = None
         self._shut_down = False
         self.loop = PlayerLoop(
-            self.engine, self.sink, self._on_played, self._publish_state, on_error=self._on_loop_error
+            self.engine,
+            self.sink,
+            self._on_played,
+            self._publish_state,
+            on_error=self._on_loop_error,
+            max_pause_ns=self.config.max_pause_ms * 1_000_000,
+            on_expired=self._on_pause_expired,
         )
         # RELIABLE: agents send replies in bursts faster than real time; best effort would drop them.
         self.create_subscription(AudioChunk, "response_voice", self._on_voice, RELIABLE)
@@ -126,12 +133,13 @@ class SimpleAudioPlayerNode(Node):
     def _on_interruption(self, msg: Interruption) -> None:
         try:
             if len(msg.stream_id) > MAX_STREAM_ID_CHARS:
-                self.interruptions_rejected += 1
-                self.get_logger().error(
-                    f"interruption rejected: stream_id of {len(msg.stream_id)} chars "
-                    f"({self.interruptions_rejected} so far)",
-                    throttle_duration_sec=LOG_EVERY_S,
-                )
+                self._reject_interruption(f"stream_id of {len(msg.stream_id)} chars")
+                return
+            if msg.action in (Interruption.PAUSE, Interruption.RESUME):
+                self._pause_or_resume(msg)
+                return
+            if msg.action != Interruption.CUT:
+                self._reject_interruption(f"unknown action {msg.action}")
                 return
             cut = Cut(msg.stream_id, _stamp_ns(msg.header.stamp), msg.reason[:64])
             outcome = self.loop.interrupt(cut)
@@ -148,6 +156,37 @@ class SimpleAudioPlayerNode(Node):
         except Exception as error:
             self._callback_failed("interruption_signal", error)
 
+    def _reject_interruption(self, why: str) -> None:
+        self.interruptions_rejected += 1
+        self.get_logger().error(
+            f"interruption rejected: {why} ({self.interruptions_rejected} so far)",
+            throttle_duration_sec=LOG_EVERY_S,
+        )
+
+    def _pause_or_resume(self, msg: Interruption) -> None:
+        pause = msg.action == Interruption.PAUSE
+        if not msg.stream_id:  # a blanket pause could hold replies nobody will resume
+            self._reject_interruption(f"{'pause' if pause else 'resume'} without a stream_id")
+            return
+        state = self.loop.pause(msg.stream_id) if pause else self.loop.resume(msg.stream_id)
+        verb = "paused" if pause else "resumed"
+        if state is None:
+            self.get_logger().info(
+                f"{verb[:-1]} ({msg.reason[:64] or 'no reason'}) of {msg.stream_id[:64]!r}: not playing here",
+                throttle_duration_sec=LOG_EVERY_S,
+            )
+            return
+        self.get_logger().info(f"{verb} {state.stream_id!r} at {state.played_ms} ms ({msg.reason[:64]})")
+        self._publish_state()
+
+    def _on_pause_expired(self, outcome: CutOutcome) -> None:
+        """On the player thread: nobody resumed or cut these paused replies in time."""
+        self.get_logger().warning(
+            f"paused longer than {self.config.max_pause_ms} ms, cut: {[s.stream_id for s in outcome.cut]}"
+        )
+        self._publish_cut(outcome)
+        self._publish_state()
+
     def _on_played(self, block: PlayBlock, start_ns: int) -> None:
         """On the player thread: the AEC reference."""
         msg = make_audio_chunk(block.pcm, self.config.sample_rate, 1, _to_time(start_ns), block.stream_id)
@@ -156,7 +195,7 @@ class SimpleAudioPlayerNode(Node):
     def _on_status_timer(self) -> None:
         try:
             state = self.engine.status(self.loop.clock_ns())
-            if state.speaking or self._last_status != state:
+            if state.speaking or state.paused or self._last_status != state:
                 self._publish_state()
             elif state.queued_ms == 0:
                 self._status_timer.cancel()  # idle: nothing changes until the next chunk
@@ -218,6 +257,7 @@ class SimpleAudioPlayerNode(Node):
             speaking=state.speaking,
             finished=state.finished,
             interrupted=state.interrupted,
+            paused=state.paused,
             starved=state.starved,
         )
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -245,6 +285,7 @@ class SimpleAudioPlayerNode(Node):
         self.get_logger().info(
             f"player stopped: chunks={stats.chunks} blocks={stats.blocks_played} "
             f"interruptions={stats.interruptions} streams_cut={stats.streams_cut} "
+            f"pauses={stats.pauses} resumes={stats.resumes} pauses_expired={stats.pauses_expired} "
             f"dropped_late={stats.chunks_dropped_interrupted} dropped_closed={stats.chunks_dropped_closed} "
             f"superseded={stats.streams_superseded} "
             f"dropped_overflow_samples={stats.samples_dropped_overflow} "

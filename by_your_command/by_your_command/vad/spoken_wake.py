@@ -74,16 +74,9 @@ class WakeRecognizer:
     def __init__(
         self, wake_phrases: Iterable[str], sleep_phrases: Iterable[str] = (), robot_name: str = ""
     ) -> None:
-        try:
-            from pocketsphinx import Config, Decoder  # type: ignore[import-untyped]
-            from pocketsphinx.lm import ArpaBoLM  # type: ignore[import-untyped]
-        except ImportError as error:
-            raise RecognizerUnavailableError(
-                f"pocketsphinx is not installed ({error}); `pip install pocketsphinx==5.1.1`"
-            ) from error
+        dictionary = pronunciations()
         wake_phrases, sleep_phrases = list(wake_phrases), list(sleep_phrases)
         self._matcher = PhraseMatcher(wake_phrases, sleep_phrases, robot_name)
-        dictionary = _pronunciations(Path(Config()["dict"]))  # the wheel's en-us dictionary
 
         def known(words: list[str]) -> bool:
             return all(word in dictionary for word in words)
@@ -99,26 +92,43 @@ class WakeRecognizer:
         # One "sentence" per garbage word and WAKE_WEIGHT per wake phrase: a unigram-ish model in
         # which a wake phrase is likely but any other speech has words of its own to go to.
         text = "\n".join(vocabulary + [p for p in wakes for _ in range(WAKE_WEIGHT)]) + "\n"
+        self._recognizer = SmallVocabulary(text, dictionary, MAX_UTTERANCE_S)
+        self.phrases = tuple(wakes)
+
+    def transcribe(self, pcm: Int16Array, sample_rate: int) -> str:
+        return self._recognizer.transcribe(pcm, sample_rate)
+
+    def recognize(self, pcm: Int16Array, sample_rate: int) -> WakeResult:
+        text = self.transcribe(pcm, sample_rate)
+        return WakeResult(text, self._matcher.match(text) is PhraseCommand.WAKE)
+
+
+class SmallVocabulary:
+    """pocketsphinx decoding one utterance against a language model made of `text` (one sentence per
+    line; a word's share of the lines is its prior), with only those words' pronunciations
+    (loading all 135k entries of the dictionary takes seconds). Not thread-safe."""
+
+    def __init__(self, text: str, dictionary: dict[str, list[str]], max_s: float) -> None:
+        from pocketsphinx import Decoder  # type: ignore[import-untyped]
+        from pocketsphinx.lm import ArpaBoLM  # type: ignore[import-untyped]
+
         model = ArpaBoLM(text=text, add_start=True, case="lower")
         model.compute()
         arpa = io.StringIO()
         model.write(arpa)
-        with tempfile.TemporaryDirectory(prefix="byc_wake_") as tmp:
-            lm, words = Path(tmp) / "wake.arpa", Path(tmp) / "wake.dict"
+        with tempfile.TemporaryDirectory(prefix="byc_lm_") as tmp:
+            lm, words = Path(tmp) / "small.arpa", Path(tmp) / "small.dict"
             lm.write_text(arpa.getvalue(), encoding="utf-8")
-            # Only the words the model can produce: loading all 135k entries takes seconds.
             spoken = sorted(set(text.split()))
             words.write_text("".join(f"{e}\n" for w in spoken for e in dictionary[w]), encoding="utf-8")
             self._decoder = Decoder(samprate=SAMPLE_RATE, loglevel="FATAL", lm=str(lm), dict=str(words))
-        self.phrases = tuple(wakes)
-        self._noise = np.random.default_rng(0).normal(
-            0.0, NOISE_FLOOR_STD, int(MAX_UTTERANCE_S * SAMPLE_RATE)
-        )
+        self._noise = np.random.default_rng(0).normal(0.0, NOISE_FLOOR_STD, int(max_s * SAMPLE_RATE))
 
     def transcribe(self, pcm: Int16Array, sample_rate: int) -> str:
+        """What was said in `pcm` (at most max_s of it is decoded)."""
         if sample_rate != SAMPLE_RATE:
             pcm = resample(pcm, sample_rate, SAMPLE_RATE)
-        pcm = pcm[: len(self._noise)]  # bounded: never decode more than MAX_UTTERANCE_S
+        pcm = pcm[: len(self._noise)]
         noisy = np.clip(pcm.astype(np.float64) + self._noise[: len(pcm)], -32768, 32767).astype(np.int16)
         self._decoder.start_utt()
         try:
@@ -128,9 +138,16 @@ class WakeRecognizer:
         hyp = self._decoder.hyp()
         return str(hyp.hypstr) if hyp is not None else ""
 
-    def recognize(self, pcm: Int16Array, sample_rate: int) -> WakeResult:
-        text = self.transcribe(pcm, sample_rate)
-        return WakeResult(text, self._matcher.match(text) is PhraseCommand.WAKE)
+
+def pronunciations() -> dict[str, list[str]]:
+    """The pocketsphinx wheel's en-us dictionary; RecognizerUnavailableError without pocketsphinx."""
+    try:
+        from pocketsphinx import Config
+    except ImportError as error:
+        raise RecognizerUnavailableError(
+            f"pocketsphinx is not installed ({error}); `pip install pocketsphinx==5.1.1`"
+        ) from error
+    return _pronunciations(Path(Config()["dict"]))
 
 
 def _pronunciations(path: Path) -> dict[str, list[str]]:

@@ -26,6 +26,7 @@ from agent_graph import (
     setup_requests,
     until,
 )
+from by_your_command_msgs.msg import Interruption
 from std_msgs.msg import Bool
 
 from by_your_command.audio.pcm import read_wav
@@ -203,7 +204,9 @@ def test_tool_mode_returns_the_processors_verdicts_to_the_model(ros_namespace: s
         no_secret_in(agent_out)
 
 
-def test_barge_in_cuts_the_player_and_truncates_at_the_played_ms(ros_namespace: str, tmp_path: Path) -> None:
+def test_barge_in_pauses_the_player_then_cuts_and_truncates_at_what_was_heard(
+    ros_namespace: str, tmp_path: Path
+) -> None:
     story = "Once upon a time there was a robot who loved to talk about everything it saw." * 2
     script = Script(turns=(Turn(Say(story)), Turn(Say("Yes?"))), ms_per_char=MS_PER_CHAR)
     story_ms = len(story) * MS_PER_CHAR
@@ -230,16 +233,23 @@ def test_barge_in_cuts_the_player_and_truncates_at_the_played_ms(ros_namespace: 
 
         # The user starts talking over it: the VAD's onset first, then the utterance's chunks.
         probe.activity.publish(Bool(data=True))
+        paused = until(
+            lambda: [s for s in list(probe.playback) if s.stream_id == stream_id and s.paused],
+            "the player paused the story",
+            check,
+        )
+        frozen_ms = paused[0].played_ms
+        assert 600 <= frozen_ms < story_ms
+        probe.say(corpus_utterance(0))  # "Hello robot, what do you see?": words, not a backchannel
+        probe.activity.publish(Bool(data=False))
         cut = until(
             lambda: [s for s in list(probe.playback) if s.stream_id == stream_id and s.interrupted],
             "the player cut the story",
             check,
         )
-        assert [i.stream_id for i in probe.interruptions] == [stream_id]
-        frozen_ms = cut[0].played_ms
-        assert 600 <= frozen_ms < story_ms
-        probe.say(corpus_utterance(0))
-        probe.activity.publish(Bool(data=False))
+        assert cut[0].played_ms == frozen_ms  # nothing more was heard while the speech was judged
+        actions = [(i.stream_id, i.action) for i in probe.interruptions]
+        assert actions == [(stream_id, Interruption.PAUSE), (stream_id, Interruption.CUT)]
 
         truncate = until(lambda: openai.events("conversation.item.truncate"), "the truncation", check)[0]
         types = openai.types()

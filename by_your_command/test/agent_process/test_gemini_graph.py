@@ -20,6 +20,7 @@ from agent_graph import (
     gemini_graph,
     until,
 )
+from by_your_command_msgs.msg import Interruption
 from PIL import Image as PilImage
 from sensor_msgs.msg import Image
 from std_msgs.msg import Bool
@@ -193,7 +194,7 @@ def test_voice_text_and_what_do_you_see_with_the_frame_taken_after_the_question(
     assert heard.tobytes() == b"".join(speech_pcm(a, MS_PER_CHAR) for a in answers), "all heard, whole"
 
 
-def test_barge_in_the_player_is_cut_before_the_model_is_told_and_the_interrupting_turn_is_answered(
+def test_barge_in_the_player_is_paused_before_the_model_is_told_and_the_interrupting_turn_is_answered(
     ros_namespace: str, tmp_path: Path
 ) -> None:
     story = "Once upon a time there was a robot who loved to talk about everything it saw." * 2
@@ -218,9 +219,9 @@ def test_barge_in_the_player_is_cut_before_the_model_is_told_and_the_interruptin
 
         stream_id = until(story_playing, "600 ms of the story played", check, WAIT_S)
         probe.activity.publish(Bool(data=True))  # the user starts talking over it
-        cut = until(
-            lambda: [s for s in list(probe.playback) if s.stream_id == stream_id and s.interrupted],
-            "the player cut the story",
+        paused = until(
+            lambda: [s for s in list(probe.playback) if s.stream_id == stream_id and s.paused],
+            "the player paused the story",
             check,
             WAIT_S,
         )
@@ -228,11 +229,17 @@ def test_barge_in_the_player_is_cut_before_the_model_is_told_and_the_interruptin
         # not even confirmed) and before any transcript of the cut reply.
         assert "activityStart" not in api.steps(0)
         assert probe.texts(probe.replies) == []
-        assert [i.stream_id for i in probe.interruptions] == [stream_id]
-        frozen_ms = cut[0].played_ms
+        assert [(i.stream_id, i.action) for i in probe.interruptions] == [(stream_id, Interruption.PAUSE)]
+        frozen_ms = paused[0].played_ms
         utterance = corpus_utterance(0)
         probe.say(utterance)
         probe.activity.publish(Bool(data=False))
+        until(
+            lambda: [s for s in list(probe.playback) if s.stream_id == stream_id and s.interrupted],
+            "the player cut the story",
+            check,
+            WAIT_S,
+        )
 
         until(
             lambda: "Yes?" in probe.texts(probe.replies), "the reply to the interrupting turn", check, WAIT_S

@@ -15,8 +15,8 @@ from virtual_time import VirtualClock
 from by_your_command.agents.config import AgentConfig
 from by_your_command.agents.inputs import CommandStatus, PlaybackStatus, RobotInput, UtteranceChunk
 from by_your_command.agents.metrics import MetricsRecord, SessionMetrics, TurnMetrics
-from by_your_command.agents.port import DetectionReport, PortUnavailable, VoiceChunk
-from by_your_command.agents.runtime import AgentRuntime
+from by_your_command.agents.port import DetectionReport, PlayerAction, PortUnavailable, VoiceChunk
+from by_your_command.agents.runtime import AgentRuntime, Transcriber
 from by_your_command.commands.processor import CommandProcessor
 
 _CLOSE = object()
@@ -81,8 +81,11 @@ class FakePort:
         request_id, text = self.of("request")[index]
         return CommandStatus(text, text if accepted else "", accepted, reason, "", request_id, 0, 1)
 
-    async def publish_interruption(self, stream_id: str, reason: str, stamp: float) -> None:
-        await self._record("interruption", (stream_id, reason))
+    async def publish_interruption(
+        self, stream_id: str, reason: str, stamp: float, action: PlayerAction = PlayerAction.CUT
+    ) -> None:
+        kind = {PlayerAction.CUT: "interruption", PlayerAction.PAUSE: "pause", PlayerAction.RESUME: "resume"}
+        await self._record(kind[action], (stream_id, reason))
 
     async def publish_transcript(self, text: str) -> None:
         await self._record("transcript", text)
@@ -131,12 +134,16 @@ async def speak(
     chunk_s: float = 0.1,
     end: bool = True,
     rate: int = 16000,
+    unvoiced_s: float = 0.0,
 ) -> None:
-    """Push an utterance as the VAD does: one chunk every chunk_s of (virtual) time, end marker last."""
+    """Push an utterance as the VAD does: one chunk every chunk_s of (virtual) time, end marker last;
+    its first `unvoiced_s` (the VAD's pre-roll) are not speech."""
     chunks = max(1, round(seconds / chunk_s))
+    chunk_samples = int(chunk_s * rate)
     for sequence in range(chunks):
         last = end and sequence == chunks - 1
-        port.push(UtteranceChunk(silence_pcm(chunk_s, rate), rate, utterance_id, sequence, last))
+        unvoiced = min((sequence + 1) * chunk_samples, int(unvoiced_s * rate))
+        port.push(UtteranceChunk(silence_pcm(chunk_s, rate), rate, utterance_id, sequence, last, unvoiced))
         await asyncio.sleep(chunk_s)
 
 
@@ -158,10 +165,13 @@ class Agent:
 
 @contextlib.asynccontextmanager
 async def running_agent(
-    config: AgentConfig, factory: FakeFactory, processor: CommandProcessor | None = None
+    config: AgentConfig,
+    factory: FakeFactory,
+    processor: CommandProcessor | None = None,
+    transcriber: Transcriber | None = None,
 ) -> AsyncIterator[Agent]:
     port = FakePort(processor=processor)
-    runtime = AgentRuntime(config, "You are a test robot.", port, factory, VirtualClock())
+    runtime = AgentRuntime(config, "You are a test robot.", port, factory, VirtualClock(), transcriber)
     task = asyncio.create_task(runtime.run())
     agent = Agent(runtime, port, factory, task)
     try:

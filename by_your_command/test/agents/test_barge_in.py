@@ -1,5 +1,8 @@
-"""Barge-in: the player is cut at the onset; real speech truncates the reply at played_ms, noise
-resumes it as a new stream from where it was cut; half duplex and command agents never cut."""
+"""Barge-in: the player is paused at the onset; speech that proves real (long enough from the VAD's
+onset, with words that are not backchannels) cuts the reply and truncates it at what was heard;
+noise and "uh-huh" resume the same stream where it paused. Half duplex and command agents never
+pause. A safety stop heard by the VAD cuts the reply. (Through the real VAD and player:
+test/agent_process/test_barge_in_graph.py.)"""
 
 from __future__ import annotations
 
@@ -11,12 +14,33 @@ from fake_provider import FakeFactory, spoken_reply
 from virtual_time import run_virtual
 
 from by_your_command.agents.config import AgentConfig, AgentRole, EchoMode
-from by_your_command.agents.inputs import PlaybackStatus, VoiceActivity
+from by_your_command.agents.inputs import PlaybackStatus, SafetyStop, VoiceActivity
+from by_your_command.agents.overlap_words import LocalTranscriber, interrupting_words
 from by_your_command.agents.runtime import RECENT_CUTS
+from by_your_command.offline.speaker import Speaker, SpeakerConfig
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 
 DUPLEX = AgentConfig(echo_mode=EchoMode.AEC, min_barge_in_ms=400, barge_in_window_s=1.5)
+LENGTH_ONLY = AgentConfig(
+    echo_mode=EchoMode.AEC, min_barge_in_ms=400, barge_in_window_s=1.5, min_barge_in_words=0
+)
+
+
+class Said:
+    """A transcriber that hears the given words (after a virtual decode time)."""
+
+    def __init__(self, text: str, fail: bool = False) -> None:
+        self.text = text
+        self.fail = fail
+        self.calls: list[int] = []
+
+    async def __call__(self, pcm: bytes, sample_rate: int) -> str:
+        self.calls.append(len(pcm))
+        await asyncio.sleep(0.05)
+        if self.fail:
+            raise RuntimeError("decoder broke")
+        return self.text
 
 
 async def reply_playing(agent, played_ms: int) -> str:  # type: ignore[no-untyped-def]
@@ -29,29 +53,30 @@ async def reply_playing(agent, played_ms: int) -> str:  # type: ignore[no-untype
     return stream
 
 
-def test_real_barge_in_cuts_the_player_first_then_truncates_at_the_played_ms() -> None:
+def test_real_barge_in_pauses_the_player_first_then_cuts_at_what_was_heard() -> None:
     async def scenario() -> None:
         # r1 is generated in real time, so it is still being generated when the user barges in
         factory = FakeFactory(spoken_reply("r1", seconds=2.0, pace_s=0.2), spoken_reply("r2", seconds=0.2))
-        async with running_agent(DUPLEX, factory) as agent:
+        async with running_agent(DUPLEX, factory, transcriber=Said("wait a second")) as agent:
             stream = await reply_playing(agent, 700)
             provider = factory.last
             calls_before = len(provider.calls)
             agent.port.push(VoiceActivity(True))
             await asyncio.sleep(0.001)
-            # the interruption is out before the provider heard anything about it
-            assert agent.port.of("interruption") == [(stream, "barge_in")]
+            # the pause is out before the provider heard anything about it; nothing is cut yet
+            assert agent.port.of("pause") == [(stream, "barge_in")]
+            assert agent.port.of("interruption") == []
             assert len(provider.calls) == calls_before
-            agent.port.push(PlaybackStatus(stream, 760, interrupted=True))  # the player froze played_ms
-            published_at_cut = len(agent.port.stream_audio(stream))
+            agent.port.push(PlaybackStatus(stream, 760, queued_ms=900, paused=True))  # where it paused
             await speak(agent.port, 2, seconds=1.0)
             await asyncio.sleep(2.0)
             await agent.stop()
-        assert len(agent.port.stream_audio(stream)) == published_at_cut  # nothing more of the cut reply
+        assert agent.port.of("interruption") == [(stream, "barge_in")]
+        assert agent.port.of("resume") == []
         names = provider.names()
         interrupt = names.index("interrupt")
         assert provider.calls[interrupt][1] == ("r1", "item-r1", 760)
-        # the new utterance's audio follows the interrupt (held during the window, none lost)
+        # the new utterance's audio follows the interrupt (held while judged, none lost)
         first_new_audio = next(i for i, n in enumerate(names) if n == "audio" and i > interrupt)
         assert first_new_audio > interrupt
         assert names.count("end_of_turn") == 2
@@ -63,13 +88,13 @@ def test_real_barge_in_cuts_the_player_first_then_truncates_at_the_played_ms() -
     run_virtual(scenario())
 
 
-def test_false_barge_in_resumes_the_unplayed_remainder_as_a_new_stream() -> None:
+def test_a_cough_resumes_the_same_stream_where_it_paused() -> None:
     async def scenario() -> None:
         factory = FakeFactory(spoken_reply("r1", seconds=2.0, chunk_s=0.2))
-        async with running_agent(DUPLEX, factory) as agent:
+        async with running_agent(DUPLEX, factory, transcriber=Said("")) as agent:
             stream = await reply_playing(agent, 500)
             agent.port.push(VoiceActivity(True))
-            agent.port.push(PlaybackStatus(stream, 500, interrupted=True))
+            agent.port.push(PlaybackStatus(stream, 500, queued_ms=1500, paused=True))
             await speak(agent.port, 2, seconds=0.2)  # a cough: shorter than min_barge_in_ms
             await asyncio.sleep(1.0)
             await agent.stop()
@@ -77,12 +102,113 @@ def test_false_barge_in_resumes_the_unplayed_remainder_as_a_new_stream() -> None
         assert "interrupt" not in provider.names()
         assert provider.names().count("end_of_turn") == 1  # the cough was never committed
         assert len(provider.audio) == 2 * int(0.3 * 24000)  # nor sent
-        first, resumed = agent.port.streams()
-        assert first == stream
-        whole = agent.port.stream_audio(first)
-        assert agent.port.stream_audio(resumed) == whole[2 * int(0.5 * 24000) :]
-        assert agent.port.voice()[-1].stream_id == resumed and agent.port.voice()[-1].end_of_stream
+        assert agent.port.streams() == [stream]  # no second stream: the player kept the rest
+        assert agent.port.of("pause") == [(stream, "barge_in")]
+        assert agent.port.of("resume") == [(stream, "false_barge_in")]
+        assert agent.port.of("interruption") == []
+        assert len(agent.port.stream_audio(stream)) == 2 * 2 * 24000  # the whole reply, once
+        assert agent.port.voice()[-1].stream_id == stream and agent.port.voice()[-1].end_of_stream
         assert agent.runtime.counters.false_barge_ins == 1
+
+    run_virtual(scenario())
+
+
+def test_the_vads_pre_roll_is_not_speech() -> None:
+    """Issue 34: a cough arrives with half a second of pre-roll; counting all of it confirmed every
+    cough on the real graph."""
+
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=2.0, chunk_s=0.2))
+        async with running_agent(LENGTH_ONLY, factory) as agent:
+            stream = await reply_playing(agent, 500)
+            agent.port.push(VoiceActivity(True))
+            # 0.48 s of pre-roll, 0.1 s of cough, 0.25 s of closing silence (unvoiced too)
+            await speak(agent.port, 2, seconds=0.8, unvoiced_s=0.7)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        assert "interrupt" not in factory.last.names()
+        assert agent.port.of("resume") == [(stream, "false_barge_in")]
+        assert agent.runtime.counters.false_barge_ins == 1
+
+    run_virtual(scenario())
+
+
+@pytest.mark.parametrize("said", ["uh huh", "yeah okay", "mm-hm right"])
+def test_a_backchannel_long_enough_to_be_speech_resumes_the_reply(said: str) -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=3.0, chunk_s=0.2))
+        async with running_agent(DUPLEX, factory, transcriber=Said(said)) as agent:
+            stream = await reply_playing(agent, 500)
+            agent.port.push(VoiceActivity(True))
+            await speak(agent.port, 2, seconds=0.7)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        assert "interrupt" not in factory.last.names()
+        assert agent.port.of("resume") == [(stream, "false_barge_in")]
+        assert agent.runtime.counters.false_barge_ins == 1
+
+    run_virtual(scenario())
+
+
+def test_a_false_then_a_real_barge_in_truncates_at_all_that_was_heard() -> None:
+    """Issue 34: the resumed remainder was a new stream whose played_ms started at 0, so the later
+    truncation point was what was heard since the resume, not of the whole reply."""
+
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=10.0, chunk_s=0.5), spoken_reply("r2", seconds=0.2))
+        transcriber = Said("")
+        async with running_agent(DUPLEX, factory, transcriber=transcriber) as agent:
+            stream = await reply_playing(agent, 4000)
+            agent.port.push(VoiceActivity(True))
+            agent.port.push(PlaybackStatus(stream, 4000, queued_ms=6000, paused=True))
+            await speak(agent.port, 2, seconds=0.2)  # a cough
+            await asyncio.sleep(0.5)
+            assert agent.port.of("resume") == [(stream, "false_barge_in")]
+            agent.port.push(playing(stream, 7000))  # three seconds more were heard
+            await asyncio.sleep(0.001)
+            transcriber.text = "no tell me about the kitchen"
+            agent.port.push(VoiceActivity(True))
+            agent.port.push(PlaybackStatus(stream, 7020, queued_ms=2980, paused=True))
+            await speak(agent.port, 3, seconds=1.0)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        assert agent.port.of("pause") == [(stream, "barge_in")] * 2
+        assert agent.port.of("interruption") == [(stream, "barge_in")]
+        assert ("interrupt", ("r1", "item-r1", 7020)) in factory.last.calls
+
+    run_virtual(scenario())
+
+
+def test_the_truncation_point_before_the_players_pause_report_is_estimated_and_clamped() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=2.0, pace_s=0.1), spoken_reply("r2", seconds=0.2))
+        async with running_agent(LENGTH_ONLY, factory) as agent:
+            stream = await reply_playing(agent, 300)
+            await asyncio.sleep(0.2)  # the player said 300 ms, 0.2 s ago, and played on
+            agent.port.push(VoiceActivity(True))
+            await speak(agent.port, 2, seconds=1.0)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        assert agent.port.of("interruption") == [(stream, "barge_in")]
+        [(_, (_, _, heard))] = [c for c in factory.last.calls if c[0] == "interrupt"]
+        assert heard == pytest.approx(500, abs=2)
+
+    run_virtual(scenario())
+
+
+def test_a_failing_transcriber_leaves_the_verdict_to_the_speechs_length() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=2.0, pace_s=0.2), spoken_reply("r2", seconds=0.2))
+        transcriber = Said("", fail=True)
+        async with running_agent(DUPLEX, factory, transcriber=transcriber) as agent:
+            stream = await reply_playing(agent, 300)
+            agent.port.push(VoiceActivity(True))
+            await speak(agent.port, 2, seconds=1.0)
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        assert transcriber.calls
+        assert agent.port.of("interruption") == [(stream, "barge_in")]
+        assert agent.runtime.counters.internal_errors >= 1
 
     run_virtual(scenario())
 
@@ -95,8 +221,9 @@ def test_an_onset_without_speech_is_false_after_the_window() -> None:
             agent.port.push(VoiceActivity(True))  # a VAD blip: no utterance follows
             await asyncio.sleep(2.0)
             await agent.stop()
-        assert agent.port.of("interruption") == [(stream, "barge_in")]
-        assert len(agent.port.streams()) == 2
+        assert agent.port.of("pause") == [(stream, "barge_in")]
+        assert agent.port.of("resume") == [(stream, "false_barge_in")]
+        assert agent.port.streams() == [stream]
         assert agent.runtime.counters.false_barge_ins == 1
 
     run_virtual(scenario())
@@ -105,7 +232,7 @@ def test_an_onset_without_speech_is_false_after_the_window() -> None:
 def test_barge_in_works_after_generation_ended_from_playback_status() -> None:
     async def scenario() -> None:
         factory = FakeFactory(spoken_reply("r1", seconds=2.0), spoken_reply("r2", seconds=0.2))
-        async with running_agent(DUPLEX, factory) as agent:
+        async with running_agent(LENGTH_ONLY, factory) as agent:
             stream = await reply_playing(agent, 100)
             assert agent.port.turns()[0].outcome == "completed"  # generation is over
             await asyncio.sleep(1.0)
@@ -115,6 +242,28 @@ def test_barge_in_works_after_generation_ended_from_playback_status() -> None:
             await agent.stop()
         assert agent.port.of("interruption") == [(stream, "barge_in")]
         assert ("interrupt", ("r1", "item-r1", 1100)) in factory.last.calls
+
+    run_virtual(scenario())
+
+
+def test_a_safety_stop_cuts_the_reply_and_the_model_learns_it() -> None:
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=3.0, pace_s=0.2))
+        async with running_agent(AgentConfig(), factory) as agent:  # half duplex: no barge-in
+            stream = await reply_playing(agent, 400)
+            agent.port.push(SafetyStop("stop"))
+            await asyncio.sleep(1.0)
+            published = len(agent.port.stream_audio(stream))
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        assert agent.port.of("interruption") == [(stream, "safety_stop")]
+        assert len(agent.port.stream_audio(stream)) == published  # nothing more of it
+        [(_, (response, _, heard))] = [c for c in factory.last.calls if c[0] == "interrupt"]
+        assert response == "r1" and heard == pytest.approx(400, abs=2)  # played on since its report
+        assert agent.runtime.counters.safety_stops == 1
+        assert [t.outcome for t in agent.port.turns()] == ["interrupted"]
+        texts = [turn.text for turn in agent.runtime.context.history(0)]
+        assert any('"stop" (the robot heard this itself' in text for text in texts)
 
     run_virtual(scenario())
 
@@ -135,7 +284,7 @@ def test_no_barge_in_in_half_duplex_or_from_a_command_agent(config: AgentConfig)
             await speak(agent.port, 2, seconds=1.0)
             await asyncio.sleep(1.0)
             await agent.stop()
-        assert agent.port.of("interruption") == []
+        assert agent.port.of("interruption") == [] and agent.port.of("pause") == []
         assert "interrupt" not in factory.last.names()
         if config.role is AgentRole.COMMAND:
             assert agent.port.voice() == []  # never audio
@@ -149,7 +298,7 @@ def test_the_cut_replies_remembered_are_bounded() -> None:
     async def scenario() -> None:
         rounds = RECENT_CUTS + 30
         factory = FakeFactory(*(spoken_reply(f"r{n}", seconds=2.0, pace_s=0.2) for n in range(rounds + 1)))
-        async with running_agent(DUPLEX, factory) as agent:
+        async with running_agent(LENGTH_ONLY, factory) as agent:
             await speak(agent.port, 0, seconds=0.3)
             for n in range(1, rounds + 1):
                 await asyncio.sleep(0.5)
@@ -162,3 +311,33 @@ def test_the_cut_replies_remembered_are_bounded() -> None:
         assert len(agent.runtime._cut) == RECENT_CUTS  # the newest only
 
     run_virtual(scenario())
+
+
+@pytest.mark.parametrize(
+    ("text", "left"),
+    [
+        ("uh-huh", []),
+        ("uh huh yeah", []),
+        ("okay i see", []),
+        ("wait a second", ["wait", "a", "second"]),
+        ("yeah but no", ["but", "no"]),
+        ("", []),
+    ],
+)
+def test_backchannel_phrases_are_taken_out_of_what_was_heard(text: str, left: list[str]) -> None:
+    assert interrupting_words(text, DUPLEX.backchannels) == left
+
+
+def test_the_local_transcriber_hears_words_in_speech_and_few_in_a_backchannel() -> None:
+    """The real recogniser (pocketsphinx, small vocabulary) on espeak-ng speech: a sentence brings
+    enough interrupting words, "okay" and "uh huh" not (bench_barge_in.py measures many voices)."""
+    speaker = Speaker(SpeakerConfig(voice="en-us", sample_rate=16000))
+    transcribe = LocalTranscriber(DUPLEX.backchannels)
+
+    def words(text: str) -> list[str]:
+        pcm, rate = speaker.say(text)
+        return interrupting_words(transcribe(pcm, rate), DUPLEX.backchannels)
+
+    assert len(words("what about the dogs")) >= DUPLEX.min_barge_in_words
+    assert len(words("okay")) < DUPLEX.min_barge_in_words
+    assert len(words("uh huh")) < DUPLEX.min_barge_in_words

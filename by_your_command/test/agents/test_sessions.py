@@ -262,11 +262,15 @@ def test_a_slow_bridge_never_delays_an_interruption_and_the_cut_audio_is_not_sen
         await asyncio.sleep(0.5)
         onset = asyncio.get_running_loop().time()
         port.push(VoiceActivity(True))
+        await speak(port, 2, seconds=1.0)  # real speech: the reply is cut
+        cut_at = asyncio.get_running_loop().time()
         await asyncio.sleep(10.0)
         port.close()
         await asyncio.wait_for(task, 30)
-        [(at, _, (stream, reason))] = [entry for entry in port.published if entry[1] == "interruption"]
-        assert at == onset and reason == "barge_in"  # not after the audio queued before it
+        [(paused_at, _, (stream, reason))] = [entry for entry in port.published if entry[1] == "pause"]
+        assert paused_at == onset and reason == "barge_in"  # not after the audio queued before it
+        [(at, _, (cut, _))] = [entry for entry in port.published if entry[1] == "interruption"]
+        assert cut == stream and at < cut_at
         sent = [chunk for chunk in port.voice() if chunk.stream_id == stream]
         assert 0 < len(sent) < 10  # what was still queued when the reply was cut never went out
 

@@ -73,6 +73,8 @@ def play_blocks(eng: PlaybackEngine, now: int, count: int | None = None) -> tupl
         {"sample_rate": 0},
         {"sample_rate": 1_000_003},
         {"max_chunk_ms": 0},
+        {"max_pause_ms": 0},
+        {"max_pause_ms": 10**9},
     ],
 )
 def test_bad_player_config_is_a_clear_error(kwargs: dict[str, object]) -> None:
@@ -297,6 +299,56 @@ def test_queue_overflow_is_counted() -> None:
     assert eng.stats.samples_dropped_overflow == int(0.4 * RATE)
 
 
+@pytest.mark.unit
+def test_a_pause_holds_the_reply_and_a_resume_goes_on_where_it_stopped() -> None:
+    """Issue 34: a barge-in being judged pauses the reply; played_ms stays continuous, so a later
+    real interruption reports what was heard of the whole reply."""
+    eng = engine()
+    eng.enqueue(chunk("r1", tone(1.0, RATE), end_of_stream=True), T0)
+    eng.enqueue(chunk("r2", tone(0.1, RATE), end_of_stream=True), T0)
+    _, now = play_blocks(eng, T0, count=10)
+    pause_at = now - 15 * MS  # the 10th block has played 5 ms of its 20
+    state, flush = eng.pause("r1", pause_at)
+    assert flush and state is not None and state.paused and not state.speaking
+    assert state.played_ms == 185 and state.queued_ms == 815
+    assert eng.next_block() is None  # nothing plays, not even the reply behind it
+    assert eng.status(pause_at + 3000 * MS).played_ms == 185
+    resumed = eng.resume("r1", pause_at + 3000 * MS)
+    assert resumed is not None and not resumed.paused
+    block = eng.next_block()
+    assert block is not None and block.stream_id == "r1"
+    assert np.array_equal(block.pcm, tone(1.0, RATE)[185 * 16 : 185 * 16 + BLOCK])  # from the pause on
+    eng.commit(block, pause_at + 3000 * MS)
+    _, later = play_blocks(eng, pause_at + 3020 * MS, count=5)
+    outcome = eng.interrupt(Cut("r1"), later)
+    assert outcome.cut[0].played_ms == 185 + 6 * 20  # what was heard of the whole reply
+    assert [b.stream_id for b in play_blocks(eng, later)[0]][:1] == ["r2"]
+    assert (eng.stats.pauses, eng.stats.resumes) == (1, 1)
+
+
+@pytest.mark.unit
+def test_pausing_what_is_not_playing_changes_nothing() -> None:
+    eng = engine()
+    eng.enqueue(chunk("r1", tone(0.04, RATE), end_of_stream=True), T0)
+    _, end = play_blocks(eng, T0)
+    assert eng.pause("r1", end) == (eng.status(end), False)  # finished: nothing to hold
+    assert eng.pause("nobody", end) == (None, False)
+    assert eng.resume("r1", end) is None and eng.stats.pauses == 0
+
+
+@pytest.mark.unit
+def test_a_pause_nobody_resolves_becomes_a_cut() -> None:
+    eng = engine()
+    eng.enqueue(chunk("r1", tone(1.0, RATE)), T0)
+    play_blocks(eng, T0, count=5)
+    eng.pause("r1", T0 + 100 * MS)
+    assert eng.pause_deadline_ns(500 * MS) == T0 + 600 * MS
+    assert eng.expire_pauses(500 * MS, T0 + 600 * MS).cut == ()
+    outcome = eng.expire_pauses(500 * MS, T0 + 601 * MS)
+    assert [s.stream_id for s in outcome.cut] == ["r1"] and outcome.cut[0].interrupted
+    assert eng.stats.pauses_expired == 1 and eng.pause_deadline_ns(500 * MS) is None
+
+
 # -- the real loop, with a WAV sink --------------------------------------------------------
 
 
@@ -377,6 +429,28 @@ def test_a_realtime_interruption_leaves_exactly_played_ms_in_the_wav_and_the_nex
     assert len(pcm) - int(0.2 * RATE) in range(heard_a, heard_a + RATE // 1000)
     assert np.array_equal(pcm[:heard_a], first[:heard_a])
     assert loop.engine.status(loop_clock()).played_ms == 200  # B's status at the end
+
+
+@pytest.mark.unit
+def test_a_paused_then_resumed_reply_is_heard_whole_in_the_wav(tmp_path: Path) -> None:
+    """Through the real loop and a real-time sink: what the listener hears is the reply once,
+    exactly, however often it is paused (the block in the sink at a pause is played again from
+    its unheard part only, and a block handed out meanwhile goes after it)."""
+    loop, recorder, _ = make_loop(tmp_path, realtime=True)
+    loop.start()
+    reply = np.random.default_rng(3).normal(0, 3000, RATE).astype(np.int16)
+    loop.engine.enqueue(chunk("A", reply, end_of_stream=True), loop_clock())
+    loop.wake()
+    for pause in range(1, 6):
+        wait_for(lambda: len(recorder.played) >= 7 * pause, timeout=5, what=f"pause {pause} due")
+        paused = loop.pause("A")
+        assert paused is not None and paused.paused
+        assert loop.resume("A") is not None
+    wait_for(lambda: any(s.stream_id == "A" and s.finished for s in recorder.states), timeout=5, what="A")
+    loop.stop()
+    pcm, _, _ = read_wav(tmp_path / "out.wav")
+    assert np.array_equal(pcm, reply)
+    assert recorder.states[-1].played_ms == 1000 and loop.engine.stats.pauses == 5
 
 
 @pytest.mark.unit

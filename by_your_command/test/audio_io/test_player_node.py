@@ -152,6 +152,36 @@ def test_a_blanket_interruption_silences_at_once_and_freezes_played_ms(
         assert not any(s.speaking for s in graph.statuses("resp-1") if s.interrupted)
 
 
+@pytest.mark.ros
+def test_a_paused_reply_holds_its_place_and_resumes_where_it_stopped(
+    ros_namespace: str, tmp_path: Path
+) -> None:
+    """Interruption.action PAUSE / RESUME (an agent judging speech over the reply): played_ms runs
+    on over the pause, the reply behind it waits, and a malformed pause is refused."""
+    wav = tmp_path / "played.wav"
+    with player_graph(ros_namespace, wav) as graph:
+        graph.send_reply("resp-1", 1.0)
+        graph.send_reply("resp-2", 0.2)
+        graph.until(lambda: any(s.played_ms >= 300 for s in graph.statuses("resp-1")), "300 ms of resp-1")
+        pause = Interruption(stream_id="resp-1", reason="barge_in", action=Interruption.PAUSE)
+        graph.interrupt.publish(pause)
+        graph.until(lambda: any(s.paused for s in graph.statuses("resp-1")), "resp-1 paused")
+        graph.until(lambda: graph.speaking[-1].data is False, "assistant_speaking False while paused")
+        at_pause = next(s for s in graph.statuses("resp-1") if s.paused)
+        assert not at_pause.speaking and at_pause.queued_ms > 0
+        graph.interrupt.publish(Interruption(reason="bad", action=Interruption.PAUSE))  # no stream named
+        graph.interrupt.publish(Interruption(stream_id="resp-1", reason="bad", action=9))
+        graph.interrupt.publish(
+            Interruption(stream_id="resp-1", reason="not noise", action=Interruption.RESUME)
+        )
+        graph.until(lambda: any(s.finished for s in graph.statuses("resp-2")), "resp-2 played after resp-1")
+        assert not any(s.interrupted for s in graph.statuses("resp-1"))
+        played = [s.played_ms for s in graph.statuses("resp-1")]
+        assert played == sorted(played)  # continuous: never back to 0 after the resume
+    samples, rate, _ = read_wav(wav)
+    assert len(samples) == int(1.2 * rate)  # all of both replies, nothing twice
+
+
 BAD_CHUNKS = [
     (4_294_967_291, 1, 480),
     (1_000_003, 1, 480),

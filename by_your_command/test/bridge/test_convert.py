@@ -127,7 +127,9 @@ def test_interruption_names_what_it_cuts() -> None:
         "barge_in",
         12,
     )
-    assert to_dict(interruption) == data
+    assert to_dict(interruption) == {**data, "action": Interruption.CUT}  # a sender without it cuts
+    paused = from_dict(Interruption, {**data, "action": Interruption.PAUSE})
+    assert paused.action == Interruption.PAUSE
     with pytest.raises(ConversionError, match="unknown field"):
         from_dict(Interruption, {"data": True})  # the old Bool shape is refused, not half-accepted
 

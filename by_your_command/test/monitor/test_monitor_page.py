@@ -145,17 +145,19 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
         bridge.deliver("agent_metrics", {"data": json.dumps(turn)})
         failed = {**turn, "turn": 2, "outcome": "failed", "first_audio_ms": None, "reason": "provider <lost>"}
         bridge.deliver("agent_metrics", {"data": json.dumps(failed)})
+        bridge.deliver("interruption_signal", {"stream_id": "robot-1-1", "reason": "barge_in", "action": 1})
         bridge.deliver("interruption_signal", {"stream_id": "robot-1-1", "reason": "barge_in"})
-        wait_for(lambda: len(transcript(page)) >= 7, timeout=30, what="seven transcript lines")
+        wait_for(lambda: len(transcript(page)) >= 8, timeout=30, what="eight transcript lines")
         lines = transcript(page)
-        assert lines[:7] == [
+        assert lines[:8] == [
             ("user", '"look up"'),
             ("robot", '"<img src=x onerror="window.pwned=1">Robert\'); <b>bold</b>"'),
             ("command", f"lookup -> {NAMESPACE}/arm_preset: accepted"),
             ("command", '"fly away" refused: unknown command'),
             ("latency", "robot: first audio 240 ms, reply generated 1310 ms (completed)"),
             ("latency", "robot: first audio –, reply generated 1310 ms (failed: provider <lost>)"),
-            ("interrupt", "robot-1-1 (barge_in)"),
+            ("interrupt", "paused robot-1-1 (barge_in)"),  # speech over it, being judged: not counted
+            ("interrupt", "cut robot-1-1 (barge_in)"),
         ], lines
         assert page.evaluate("document.querySelectorAll('#transcript img, #transcript b').length") == 0
         assert page.evaluate("window.pwned === undefined")

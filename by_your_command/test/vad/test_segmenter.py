@@ -62,6 +62,10 @@ def check_invariants(events: list[UtteranceChunk | VoiceActivity], closed: bool)
         assert ids == list(range(ids[0], ids[0] + len(ids))), "frames must be contiguous"
         assert utterance_id == frame(ids[0]).time_ns, "utterance_id is the first emitted sample's time"
         emitted.extend(ids)
+        # unvoiced_samples grows with the chunks, never beyond what was sent, and covers the pre-roll
+        unvoiced = [c.unvoiced_samples for c in chunks]
+        sent = np.cumsum([len(c.samples) for c in chunks]).tolist()
+        assert unvoiced == sorted(unvoiced) and all(u <= s for u, s in zip(unvoiced, sent, strict=True))
     assert len(emitted) == len(set(emitted)), "no frame may be emitted twice"
     assert emitted == sorted(emitted)
 
@@ -76,6 +80,26 @@ def test_onset_includes_pre_roll_once_and_end_is_marked() -> None:
     assert frame_ids(chunk) == list(range(2, 11))
     assert chunk.is_utterance_end and chunk.chunk_sequence == 0
     assert chunk.utterance_id == frame(2).time_ns
+
+
+@pytest.mark.unit
+def test_unvoiced_samples_count_the_pre_roll_and_silence_runs_never_the_speech() -> None:
+    """A barge-in judge counts speech as samples received minus these: a cough with a long pre-roll
+    must not look like half a second of speech (issue 34)."""
+    config = VadConfig(pre_roll_frames=15, utterance_chunk_frames=10, min_silence_duration_ms=250)
+    # 20 quiet frames (15 become pre-roll), a 3-frame cough, silence until the end (8 frames)
+    events = run(config, [0.0] * 20 + [0.9] * 3 + [0.0] * 12)
+    chunks = [e for e in events if isinstance(e, UtteranceChunk)]
+    received = sum(len(c.samples) for c in chunks)
+    assert received == (15 + 3 + 8) * FRAME_SAMPLES
+    assert chunks[-1].unvoiced_samples == (15 + 8) * FRAME_SAMPLES  # speech heard: the 3 frames
+    assert chunks[0].unvoiced_samples == 10 * FRAME_SAMPLES  # the first chunk is all pre-roll
+    # a pause shorter than the closing silence counts as unvoiced too, and speech after it does not
+    events = run(
+        VadConfig(pre_roll_frames=0, utterance_chunk_frames=0), [0.9] * 4 + [0.1] * 3 + [0.9] * 2 + [0.0] * 8
+    )
+    (chunk,) = [e for e in events if isinstance(e, UtteranceChunk)]
+    assert len(chunk.samples) - chunk.unvoiced_samples == 6 * FRAME_SAMPLES
 
 
 @pytest.mark.unit

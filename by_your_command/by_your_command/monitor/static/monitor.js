@@ -178,11 +178,15 @@
       setState("speaking", String(on), on ? "speaking" : "no");
     },
     interruption_signal(msg) {
-      state.interruptions += 1;
-      $("interruptions").textContent = String(state.interruptions);
-      fresh("interruptions");
+      // action: 0 cut (the count), 1 pause (speech over the reply, being judged), 2 resume
+      const action = { 1: "paused", 2: "resumed" }[msg.action] || "cut";
+      if (action === "cut") {
+        state.interruptions += 1;
+        $("interruptions").textContent = String(state.interruptions);
+        fresh("interruptions");
+      }
       const stream = text(msg.stream_id, 80) || "every reply so far";
-      addLine("interrupt", `${stream} (${text(msg.reason, 40) || "no reason"})`);
+      addLine("interrupt", `${action} ${stream} (${text(msg.reason, 40) || "no reason"})`);
     },
     agent_metrics(msg) {
       // Checked by the same rules as the bridge's summary (records.js = monitor/records.py).
