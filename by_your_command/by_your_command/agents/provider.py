@@ -83,6 +83,10 @@ class Provider(Protocol):
     async def send_text(self, text: str) -> None:
         """A typed user turn that gets a reply."""
 
+    async def add_context(self, text: str) -> None:
+        """Something the model must know from now on (the robot was stopped): a user-side note in
+        its history, no reply asked for."""
+
     async def send_image(self, jpeg: bytes) -> None:
         """A camera frame for the model to look at with the next turn."""
 

@@ -77,6 +77,7 @@ from by_your_command.agents.robot_tool import (
     verdicts_json,
 )
 from by_your_command.agents.session import (
+    AddContext,
     EndOfTurn,
     Interrupt,
     SendAudio,
@@ -886,7 +887,10 @@ class AgentRuntime:
             f": {reply.stream_id} cut at {heard} ms" if cut and reply is not None else "",
         )
         if self.config.context_source is ContextSource.OWN and not self._session_is_old_conversation():
-            self.context.add(Role.USER, SAFETY_STOP_NOTE.format(phrase=stop.phrase), now)
+            note = SAFETY_STOP_NOTE.format(phrase=stop.phrase)
+            self.context.add(Role.USER, note, now)  # for the next sessions
+            if self._session is not None:
+                self._session.send(AddContext(note))  # for this one, without asking for a reply
         answered = self._turn_out
         if cut and reply is not None and reply.generation_done and answered is not None:
             if answered.number == reply.turn:

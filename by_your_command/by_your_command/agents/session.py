@@ -41,6 +41,11 @@ class SendText:
 
 
 @dataclass(frozen=True)
+class AddContext:
+    text: str
+
+
+@dataclass(frozen=True)
 class SendImage:
     jpeg: bytes
 
@@ -57,7 +62,7 @@ class Interrupt:
     played_ms: int
 
 
-Operation = SendAudio | EndOfTurn | SendText | SendImage | SendToolResults | Interrupt
+Operation = SendAudio | EndOfTurn | SendText | AddContext | SendImage | SendToolResults | Interrupt
 
 
 @dataclass(frozen=True)
@@ -205,6 +210,8 @@ class Session:
             await provider.end_of_turn()
         elif isinstance(operation, SendText):
             await provider.send_text(operation.text)
+        elif isinstance(operation, AddContext):
+            await provider.add_context(operation.text)
         elif isinstance(operation, SendImage):
             await provider.send_image(operation.jpeg)
         elif isinstance(operation, SendToolResults):

@@ -112,6 +112,10 @@ class FakeProvider:
         self.calls.append(("text", text))
         self._answer()
 
+    async def add_context(self, text: str) -> None:
+        self._check()
+        self.calls.append(("context", text))
+
     async def send_image(self, jpeg: bytes) -> None:
         self._check()
         self.calls.append(("image", len(jpeg)))

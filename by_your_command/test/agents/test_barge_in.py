@@ -264,6 +264,10 @@ def test_a_safety_stop_cuts_the_reply_and_the_model_learns_it() -> None:
         assert [t.outcome for t in agent.port.turns()] == ["interrupted"]
         texts = [turn.text for turn in agent.runtime.context.history(0)]
         assert any('"stop" (the robot heard this itself' in text for text in texts)
+        # the live session is told too, without being asked for a reply
+        [(_, note)] = [call for call in factory.last.calls if call[0] == "context"]
+        assert note.startswith('"stop" (the robot heard this itself')
+        assert factory.last.names().count("end_of_turn") == 1
 
     run_virtual(scenario())
 

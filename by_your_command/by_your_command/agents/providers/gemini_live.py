@@ -305,6 +305,13 @@ class GeminiLiveProvider:
         async with closing_on_failure(_SESSION):
             await session.send_client_content(turns=turn, turn_complete=True)
 
+    async def add_context(self, text: str) -> None:
+        """A user turn without turnComplete: it joins the history and asks for nothing."""
+        session = self._live()
+        turn = types.Content(role="user", parts=[types.Part(text=text)])
+        async with closing_on_failure(_SESSION):
+            await session.send_client_content(turns=turn, turn_complete=False)
+
     async def send_image(self, jpeg: bytes) -> None:
         """One camera frame as realtime video, sent once (the runtime gives each frame once)."""
         if not jpeg.startswith(b"\xff\xd8") or len(jpeg) > MAX_IMAGE_BYTES:

@@ -190,6 +190,9 @@ class OfflineProvider:
         self._live()
         self._jobs.put_nowait(_Typed(text))
 
+    async def add_context(self, text: str) -> None:
+        self._live()  # no model keeps a history here: nothing to tell
+
     async def send_image(self, jpeg: bytes) -> None:
         self._live()
         self.stats.ignored_images += 1  # nothing here can look at it

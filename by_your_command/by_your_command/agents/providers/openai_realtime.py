@@ -277,6 +277,13 @@ class OpenAIRealtimeProvider:
             )
         await self._request_reply()
 
+    async def add_context(self, text: str) -> None:
+        connection = self._live()
+        async with closing_on_failure(_SESSION):
+            await connection.conversation.item.create(
+                item={"type": "message", "role": "user", "content": [{"type": "input_text", "text": text}]}
+            )
+
     async def send_image(self, jpeg: bytes) -> None:
         if not jpeg.startswith(b"\xff\xd8") or len(jpeg) > MAX_IMAGE_BYTES:
             raise ValueError(f"not a JPEG of at most {MAX_IMAGE_BYTES} bytes ({len(jpeg)} bytes)")

@@ -220,6 +220,20 @@ def test_text_turn_is_client_content_with_turn_complete() -> None:
     run(body, Script(turns=(Turn(Say("It is noon.")),)))
 
 
+def test_a_context_note_is_client_content_without_turn_complete() -> None:
+    async def body(emulator: GeminiLiveEmulator, provider: GeminiLiveProvider) -> None:
+        await provider.add_context('"stop" (the robot stopped)')
+        await provider.send_text("are you there?")
+        got = await take_until(provider.events(), is_done)
+        content = [camel(body) for body in emulator.received_of("clientContent")]
+        note = {"role": "user", "parts": [{"text": '"stop" (the robot stopped)'}]}
+        assert content[0] == {"turns": [note], "turnComplete": False}
+        assert content[1]["turnComplete"] is True
+        assert [e.text for e in got if isinstance(e, AssistantTranscript) and e.final] == ["Yes."]
+
+    run(body, Script(turns=(Turn(Say("Yes.")),)))
+
+
 @pytest.mark.parametrize("text_replies", ["transcription", "text"])
 def test_text_only_agent_gets_text_replies_and_no_audio(text_replies: str) -> None:
     async def body(emulator: GeminiLiveEmulator, provider: GeminiLiveProvider) -> None:

@@ -132,6 +132,20 @@ def test_text_turn_in_a_text_session_gets_a_text_reply() -> None:
     run(body, Script(turns=(Turn(Say("It is noon.")),)), SessionSetup("Be brief.", audio_out=False))
 
 
+def test_a_context_note_joins_the_history_without_asking_for_a_reply() -> None:
+    """The safety stop tells the model it was stopped: an item, and no response.create for it."""
+
+    async def body(emulator: OpenAIRealtimeEmulator, provider: OpenAIRealtimeProvider) -> None:
+        await provider.add_context('"stop" (the robot stopped)')
+        await provider.send_text("are you there?")
+        await take_until(provider.events(), is_done)
+        items = [event["item"]["content"][0]["text"] for event in sent(emulator, "conversation.item.create")]
+        assert items == ['"stop" (the robot stopped)', "are you there?"]
+        assert len(sent(emulator, "response.create")) == 1  # for the question only
+
+    run(body, Script(turns=(Turn(Say("Yes.")),)))
+
+
 def test_history_is_seeded_as_text_items() -> None:
     async def body(emulator: OpenAIRealtimeEmulator, provider: OpenAIRealtimeProvider) -> None:
         await provider.send_text("and now?")
