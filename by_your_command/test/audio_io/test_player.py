@@ -442,7 +442,8 @@ def test_a_paused_then_resumed_reply_is_heard_whole_in_the_wav(tmp_path: Path) -
     loop.engine.enqueue(chunk("A", reply, end_of_stream=True), loop_clock())
     loop.wake()
     for pause in range(1, 6):
-        wait_for(lambda: len(recorder.played) >= 7 * pause, timeout=5, what=f"pause {pause} due")
+        due = 7 * pause  # blocks played before this pause
+        wait_for(lambda due=due: len(recorder.played) >= due, timeout=5, what=f"pause {pause} due")
         paused = loop.pause("A")
         assert paused is not None and paused.paused
         assert loop.resume("A") is not None
