@@ -13,13 +13,16 @@ import json
 import statistics
 import sys
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "by_your_command" / "test"))
 
 from audio_io.synthetic_room import (  # type: ignore[import-not-found]  # noqa: E402
+    Conversation,
     Room,
     conversation,
     energy_db,
@@ -41,9 +44,12 @@ CONVERGED_FROM_S = 3.0
 T0 = 1_700_000_000 * 1_000_000_000
 
 
-def run(mode: str, far: Int16Array, mic: Int16Array) -> tuple[Int16Array, float, int]:
-    """(output, seconds of CPU spent in the controller, 10 ms frames processed)."""
-    echo = EchoController(EchoConfig(mode=mode, echo_guard=False))
+def run(
+    mode: str, far: Int16Array, mic: Int16Array, engine: str = "webrtc", residual: bool = False
+) -> tuple[Int16Array, float, int]:
+    """(output, seconds of CPU spent in the controller, 10 ms frames processed); `residual`: the
+    linear engine's residual suppressor on."""
+    echo = EchoController(EchoConfig(mode=mode, echo_guard=residual, aec_engine=engine))
     echo.set_assistant_speaking(True, T0)
     outs = []
     spent = 0.0
@@ -71,42 +77,45 @@ def main() -> int:
         "delay150_rev": Room(delay_ms=150, reverb_ms=250, reverb_gain=0.4),
     }
     rows = []
-    for signal_name, far in signals.items():
-        for room_name, room in rooms.items():
-            mic = room.echo(far, RATE)
-            out, spent, frames = run("aec", far, mic)
-            lo = int(CONVERGED_FROM_S * RATE)
-            reduction = energy_db(mic[lo : len(out)]) - energy_db(out[lo:])
-            per_second = [
-                energy_db(mic[s : s + RATE]) - energy_db(out[s : s + RATE])
-                for s in range(lo, len(out) - RATE + 1, RATE)
-            ]
-            figure = {
-                "bench": "aec",
-                "figure": "echo_reduction_db",
-                "signal": signal_name,
-                "room": room_name,
-                "value": round(reduction, 1),
-                "median_per_second_db": round(statistics.median(per_second), 1),
-                "unit": "dB",
-            }
-            print(json.dumps(figure))
-            rows.append(
-                (
-                    f"echo reduction {signal_name}/{room_name}",
-                    f"{reduction:.1f} dB",
-                    f"median/s {statistics.median(per_second):.1f} dB",
+    # AEC3 alone (its guard mutes frames, which is not cancelling); the linear filter as it runs
+    # by default, with its residual suppressor (alone it converges slower than AEC3 on speech).
+    for engine in ("webrtc", "linear"):
+        for signal_name, far in signals.items():
+            for room_name, room in rooms.items():
+                mic = room.echo(far, RATE)
+                out, spent, frames = run("aec", far, mic, engine, residual=engine == "linear")
+                lo = int(CONVERGED_FROM_S * RATE)
+                reduction = energy_db(mic[lo : len(out)]) - energy_db(out[lo:])
+                per_second = [
+                    energy_db(mic[s : s + RATE]) - energy_db(out[s : s + RATE])
+                    for s in range(lo, len(out) - RATE + 1, RATE)
+                ]
+                figure(
+                    figure="echo_reduction_db",
+                    engine=engine,
+                    signal=signal_name,
+                    room=room_name,
+                    value=round(reduction, 1),
+                    median_per_second_db=round(statistics.median(per_second), 1),
+                    unit="dB",
                 )
-            )
+                rows.append(
+                    (
+                        f"echo reduction {engine} {signal_name}/{room_name}",
+                        f"{reduction:.1f} dB",
+                        f"median/s {statistics.median(per_second):.1f} dB"
+                        + (" (with residual suppression)" if engine == "linear" else " (no guard)"),
+                    )
+                )
     far = signals["speech"]
     mic = Room().echo(far, RATE)
     costs = {}
-    for mode in ("external", "gate", "aec"):
+    for mode, engine in (("external", ""), ("gate", ""), ("aec", "webrtc"), ("aec", "linear")):
         samples = []
         for _ in range(3):
-            _, spent, frames = run(mode, far, mic)
+            _, spent, frames = run(mode, far, mic, engine or "webrtc", residual=engine == "linear")
             samples.append(spent / frames * 1e6)
-        costs[mode] = statistics.median(samples)
+        costs[f"{mode} {engine}".strip()] = statistics.median(samples)
     for mode, cost in costs.items():
         ratio = cost / costs["external"]
         print(
@@ -131,11 +140,16 @@ def main() -> int:
     rows += bench_resampler()
     rows += bench_quiet_latency()
     rows += bench_echo_guard()
+    rows += bench_double_talk()
+    print_rows(rows)
+    return 0
+
+
+def print_rows(rows: list[tuple[str, str, str]]) -> None:
     width = max(len(r[0]) for r in rows)
     print()
     for name, value, note in rows:
         print(f"{name:<{width}}  {value:>10}  {note}")
-    return 0
 
 
 def figure(**fields: object) -> None:
@@ -209,26 +223,56 @@ def bench_quiet_latency() -> list[tuple[str, str, str]]:
     ]
 
 
-def utterance_starts(talk: object, guard: bool, model: SileroModel) -> list[float]:
-    echo = EchoController(EchoConfig(mode="aec", echo_guard=guard))
-    model.reset()
-    detector = VoiceDetector(VadConfig(), model)
+# Echo control compared everywhere below: AEC3 alone, AEC3 + the whole-frame guard (the old
+# default), and the linear filter + per-band residual suppression (the new default).
+CONFIGS = {
+    "webrtc_guard_off": EchoConfig(mode="aec", aec_engine="webrtc", echo_guard=False),
+    "webrtc_guard_on": EchoConfig(mode="aec", aec_engine="webrtc", echo_guard=True),
+    "linear_new": EchoConfig(mode="aec", aec_engine="linear", echo_guard=True),
+}
+
+
+@dataclass
+class Listened:
+    """What the echo control let through (laid on the mic's sample clock by the output stamps)
+    and when the real Silero VAD started utterances in it (s)."""
+
+    output: npt.NDArray[np.float64]
+    starts: list[float]
+
+
+def listen(talk: Conversation, config: EchoConfig, model: SileroModel | None) -> Listened:
+    echo = EchoController(config)
+    detector = None
+    if model is not None:
+        model.reset()
+        detector = VoiceDetector(VadConfig(), model)
+    output = np.zeros(len(talk.mic))
     starts = []
     echo.set_assistant_speaking(True, T0)
-    played, mic = talk.played, talk.mic  # type: ignore[attr-defined]
+    played, mic = talk.played, talk.mic
     for k in range(0, len(mic) // BLOCK * BLOCK, BLOCK):
         start = T0 + k * 1_000_000_000 // RATE
         echo.add_reference(played[k : k + BLOCK], RATE, 1, start)
-        for block in echo.process(mic[k : k + BLOCK], start, start):
+        for block in echo.process(mic[k : k + BLOCK], start, start) + echo.drain():
+            at = round((block.start_ns - T0) * RATE / 1e9)
+            n = max(0, min(len(block.pcm), len(output) - at))
+            output[at : at + n] = block.pcm[:n]
+            if detector is None:
+                continue
             for event in detector.process(block.pcm, RATE, 1, block.start_ns):
                 if isinstance(event, VoiceActivity) and event.active:
                     starts.append((event.time_ns - T0) / 1e9)
-    return starts
+    return Listened(output, starts)
+
+
+def utterance_starts(talk: Conversation, config: EchoConfig, model: SileroModel) -> list[float]:
+    return listen(talk, config, model).starts
 
 
 def bench_echo_guard() -> list[tuple[str, str, str]]:
-    """Real Silero on the AEC output of a robot talking ~16 s: user sentences over it detected
-    (double talk) and utterances started by nothing but the robot's echo, guard on vs off."""
+    """Real Silero on the echo control's output of a robot talking ~16 s: user sentences over it
+    detected (double talk) and utterances started by nothing but the robot's echo, per config."""
     model = SileroModel()
     rooms = {
         "robot_body": Room(delay_ms=70, reverb_ms=120, reverb_gain=0.08),
@@ -236,7 +280,7 @@ def bench_echo_guard() -> list[tuple[str, str, str]]:
     }
     rows = []
     for room_name, room in rooms.items():
-        for guard in (False, True):
+        for name, config in CONFIGS.items():
             hits = users = false = 0
             seconds = 0.0
             for echo_dbfs in (-26.0, -20.0, -14.0):
@@ -245,7 +289,7 @@ def bench_echo_guard() -> list[tuple[str, str, str]]:
                     talk = conversation(
                         RATE, room, echo_dbfs=echo_dbfs, user_dbfs=user_dbfs or -26.0, user_at_s=user_at
                     )
-                    starts = utterance_starts(talk, guard, model)
+                    starts = utterance_starts(talk, config, model)
                     spans = talk.user_spans
                     hits += sum(any(b - 0.1 <= s <= e for s in starts) for b, e in spans)
                     users += len(spans)
@@ -255,7 +299,7 @@ def bench_echo_guard() -> list[tuple[str, str, str]]:
             figure(
                 figure="echo_guard",
                 room=room_name,
-                guard=guard,
+                config=name,
                 double_talk_detected=hits,
                 double_talk_total=users,
                 false_starts=false,
@@ -264,7 +308,7 @@ def bench_echo_guard() -> list[tuple[str, str, str]]:
             )
             rows.append(
                 (
-                    f"echo guard {'on ' if guard else 'off'} {room_name}",
+                    f"echo control {name} {room_name}",
                     f"{hits}/{users} DT",
                     f"{false} false starts in {seconds:.0f} s ({per_minute:.1f}/min)",
                 )
@@ -272,5 +316,170 @@ def bench_echo_guard() -> list[tuple[str, str, str]]:
     return rows
 
 
+@dataclass(frozen=True)
+class Scene:
+    """One room and one user: the robot's echo at `echo_dbfs`, the user at `user_dbfs` (the
+    level a user a metre away has with the robot silent), speaking at `user_at_s`."""
+
+    room_name: str
+    room: Room
+    echo_dbfs: float
+    voice: str | None  # espeak-ng voice; None: the corpus recording
+    user_dbfs: float = -26.0
+    user_at_s: tuple[float, ...] = (3.0, 6.5, 10.0)
+    user_room: Room | None = None
+
+
+def scenes(held_out: bool) -> list[Scene]:
+    """Tuned-on scenes, or the held-out ones (other rooms, voices, levels and times), only
+    evaluated. Echo as loud as the user (-26 dBFS) or louder (-20)."""
+    if not held_out:
+        rooms = {
+            "robot_body": Room(delay_ms=70, reverb_ms=120, reverb_gain=0.08),
+            "reverberant": Room(delay_ms=120),
+            "long_tail": Room(delay_ms=150, reverb_ms=250, reverb_gain=0.4),
+        }
+        voices: tuple[str | None, ...] = (None, "en-us+f3")
+        return [
+            Scene(name, room, echo, voices[k % 2])
+            for k, (name, room) in enumerate(rooms.items())
+            for echo in (-26.0, -20.0)
+        ]
+    rooms = {
+        "small_office": Room(delay_ms=40, gain=0.8, reverb_ms=90, reverb_gain=0.1),
+        "living_room": Room(delay_ms=100, gain=0.5, reverb_ms=200, reverb_gain=0.2, noise_dbfs=-55.0),
+        "hall": Room(delay_ms=180, gain=0.4, reverb_ms=300, reverb_gain=0.3),
+    }
+    voices = ("en-gb-scotland+m3", "en-us+f4", "en+m7")
+    return [
+        Scene(
+            name,
+            room,
+            echo,
+            voices[(k + j) % 3],
+            user_dbfs=-26.0 - 3.0 * j,
+            user_at_s=(2.5, 7.0, 11.0),
+            user_room=Room(delay_ms=3, gain=1.0, reverb_ms=60, reverb_gain=0.1, noise_dbfs=-90.0),
+        )
+        for k, (name, room) in enumerate(rooms.items())
+        for j, echo in enumerate((-26.0, -20.0))
+    ]
+
+
+def talk_of(scene: Scene, with_user: bool, echo: bool = True) -> Conversation:
+    return conversation(
+        RATE,
+        scene.room,
+        echo_dbfs=scene.echo_dbfs if echo else -200.0,
+        user_dbfs=scene.user_dbfs,
+        user_at_s=scene.user_at_s if with_user else (),
+        user_voice=scene.voice,
+        user_room=scene.user_room,
+    )
+
+
+def pearson(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    return float(np.dot(a, b) / (np.sqrt(np.dot(a, a) * np.dot(b, b)) + 1e-12))
+
+
+def first_start(starts: list[float], begin: float, end: float) -> float | None:
+    """Delay (ms) from `begin` to the first utterance start in [begin - 0.1, end], if any."""
+    hits = [s for s in starts if begin - 0.1 <= s <= end]
+    return (hits[0] - begin) * 1000 if hits else None
+
+
+def percentile(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else float("nan")
+
+
+def bench_double_talk(held_out_too: bool = True) -> list[tuple[str, str, str]]:
+    """The user at the level they have with the robot silent, talking over the robot's voice:
+    - detected: a Silero onset on the output between 0.1 s before and the end of each sentence
+      (during the robot's speech); onset delay from the sentence's first sound, p50/p95, against
+      the same sentences with nothing playing (same config, same run);
+    - near-end correlation: Pearson correlation, sample by sample, of the output over each
+      sentence's span with what the same config outputs for the user alone with nothing played
+      (so AEC3's fixed high-pass and framing count as undistorted; only what the robot's
+      playing does to the user counts: suppression, distortion and echo left in);
+    - single talk (robot only): echo attenuation (ERLE, mic vs output energy from 3 s on, the
+      robot speaking) and Silero utterance starts per minute of robot speech."""
+    model = SileroModel()
+    rows = []
+    for held_out in (False, True) if held_out_too else (False,):
+        label = "held-out" if held_out else "tuned"
+        chosen = scenes(held_out)
+        talks = [(talk_of(s, True), talk_of(s, True, echo=False), talk_of(s, False)) for s in chosen]
+        quiet_runs: dict[tuple[str, int], Listened] = {}  # nothing played: the guard has no say
+        for name, config in CONFIGS.items():
+            delays: list[float] = []
+            quiet_delays: list[float] = []
+            correlations: list[float] = []
+            detected = total = false_starts = 0
+            erles: list[float] = []
+            robot_s = 0.0
+            for index, (talk, alone, single) in enumerate(talks):
+                heard = listen(talk, config, model)
+                key = (config.aec_engine, index)
+                if key not in quiet_runs:
+                    quiet_runs[key] = listen(
+                        replace(alone, played=np.zeros_like(alone.played)), config, model
+                    )
+                quiet = quiet_runs[key]
+                robot_end = len(talk.played) / RATE - 0.5  # the reply's trailing silence
+                for begin, end in talk.user_spans:
+                    if begin >= robot_end:
+                        continue
+                    total += 1
+                    delay = first_start(heard.starts, begin, end)
+                    detected += delay is not None
+                    delays += [delay] if delay is not None else []
+                    baseline = first_start(quiet.starts, begin, end)
+                    quiet_delays += [baseline] if baseline is not None else []
+                    span = slice(int(begin * RATE), int(min(end, robot_end) * RATE))
+                    correlations.append(pearson(heard.output[span], quiet.output[span]))
+                robot = listen(single, config, model)
+                lo, hi = int(CONVERGED_FROM_S * RATE), int(robot_end * RATE)
+                mic = single.mic[lo:hi]
+                erles.append(energy_db(mic) - energy_db(np.rint(robot.output[lo:hi]).astype(np.int16)))
+                false_starts += len(robot.starts)
+                robot_s += robot_end - 0.5
+            per_minute = false_starts / robot_s * 60
+            figure(
+                figure="double_talk",
+                set=label,
+                config=name,
+                detected=detected,
+                total=total,
+                onset_ms_p50=round(percentile(delays, 50)),
+                onset_ms_p95=round(percentile(delays, 95)),
+                quiet_onset_ms_p50=round(percentile(quiet_delays, 50)),
+                quiet_onset_ms_p95=round(percentile(quiet_delays, 95)),
+                correlation_median=round(statistics.median(correlations), 3),
+                correlation_min=round(min(correlations), 3),
+                correlation_at_least_0_8=sum(c >= 0.8 for c in correlations),
+                single_talk_erle_db_min=round(min(erles), 1),
+                single_talk_erle_db_median=round(statistics.median(erles), 1),
+                false_starts_per_min=round(per_minute, 2),
+            )
+            rows.append(
+                (
+                    f"double talk {label} {name}",
+                    f"{detected}/{total} DT",
+                    f"onset p50/p95 {percentile(delays, 50):.0f}/{percentile(delays, 95):.0f} ms "
+                    f"(nothing playing {percentile(quiet_delays, 50):.0f}/"
+                    f"{percentile(quiet_delays, 95):.0f}), "
+                    f"corr median {statistics.median(correlations):.2f} min {min(correlations):.2f} "
+                    f"({sum(c >= 0.8 for c in correlations)}/{len(correlations)} >= 0.8), "
+                    f"ERLE min {min(erles):.1f} median {statistics.median(erles):.1f} dB, "
+                    f"{per_minute:.1f} false starts/min",
+                )
+            )
+    return rows
+
+
 if __name__ == "__main__":
+    if sys.argv[1:] == ["--double-talk"]:  # just the double-talk part (a minute)
+        print_rows(bench_double_talk())
+        sys.exit(0)
     sys.exit(main())

@@ -1,4 +1,5 @@
-"""Echo control for the microphone stream: half-duplex gate, WebRTC AEC3, or pass-through.
+"""Echo control for the microphone stream: half-duplex gate, echo cancellation (our long linear
+filter with per-band residual suppression, or WebRTC AEC3), or pass-through.
 
 The controller is pure (no ROS): the node hands it microphone blocks stamped with the capture
 time of their first sample, reference blocks (what the player actually played) stamped with the
@@ -18,6 +19,7 @@ import numpy as np
 from scipy.signal import butter, sosfilt
 
 from by_your_command.audio.echo_gate import EchoGate
+from by_your_command.audio.echo_linear import LinearAec
 from by_your_command.audio.pcm import Int16Array, StampedPcm, StampedResampler, float_to_int16, to_mono
 
 if TYPE_CHECKING:
@@ -44,6 +46,11 @@ class EchoMode(str, enum.Enum):
     EXTERNAL = "external"
 
 
+class AecEngine(str, enum.Enum):
+    LINEAR = "linear"  # our long linear filter + per-band residual suppression: keeps double talk
+    WEBRTC = "webrtc"  # WebRTC AEC3 + the whole-frame echo guard: distorts double talk
+
+
 @dataclass(frozen=True)
 class EchoConfig:
     mode: str = field(default="gate", metadata={"help": "gate | aec | external (pass-through)"})
@@ -51,15 +58,34 @@ class EchoConfig:
     gate_tail_ms: int = field(
         default=300, metadata={"help": "gate: keep dropping the mic this long after the assistant stops"}
     )
+    aec_engine: str = field(
+        default="linear",
+        metadata={"help": "aec: linear (long adaptive filter, keeps double talk) | webrtc (AEC3)"},
+    )
+    aec_filter_ms: int = field(
+        default=640,
+        metadata={
+            "help": "aec linear: echo path span (speaker-to-mic delay + room reverb) the filter models"
+        },
+    )
+    aec_step: float = field(
+        default=0.5, metadata={"help": "aec linear: adaptation step (0-1]: faster convergence vs less noise"}
+    )
+    aec_double_talk_margin_db: float = field(
+        default=6.0,
+        metadata={"help": "aec linear: output this far above the echo it leaves = someone talks: freeze"},
+    )
     aec_stream_delay_ms: int = field(
         default=0,
-        metadata={"help": "aec: extra render-to-capture delay hint for AEC3 (it also estimates delay)"},
+        metadata={
+            "help": "aec webrtc: extra render-to-capture delay hint for AEC3 (it also estimates delay)"
+        },
     )
     aec_reference_wait_ms: int = field(
         default=48,
         metadata={"help": "aec: hold mic audio up to this long for its reference to arrive (adds latency)"},
     )
-    aec_noise_suppression: bool = field(default=False, metadata={"help": "aec: also run WebRTC NS"})
+    aec_noise_suppression: bool = field(default=False, metadata={"help": "aec webrtc: also run WebRTC NS"})
     stamp_tolerance_ms: int = field(
         default=20,
         metadata={"help": "aec: a mic or reference stamp this far off its stream's timeline restarts it"},
@@ -68,17 +94,27 @@ class EchoConfig:
         default=2000, metadata={"help": "aec: how much played audio to keep for alignment"}
     )
     echo_guard: bool = field(
-        default=True, metadata={"help": "aec: mute residual echo while the robot speaks (see docs)"}
+        default=True,
+        metadata={"help": "aec: suppress residual echo (linear: per band, soft; webrtc: mute frames)"},
     )
     echo_guard_margin_db: float = field(
-        default=6.0, metadata={"help": "aec: how far above residual echo the user must be to pass"}
+        default=6.0,
+        metadata={
+            "help": "aec: how far above the residual echo learned so far a band/frame counts as the user"
+        },
+    )
+    echo_guard_floor_db: float = field(
+        default=-20.0,
+        metadata={"help": "aec linear: the most a band dominated by residual echo is turned down (dB, < 0)"},
     )
     echo_guard_release_db_per_s: float = field(
         default=50.0,
-        metadata={"help": "aec: how fast the guard's reference envelope decays (slower than room reverb)"},
+        metadata={
+            "help": "aec: how fast the guard's echo estimate decays after the robot (slower than reverb)"
+        },
     )
     echo_guard_hangover_ms: int = field(
-        default=200, metadata={"help": "aec: once the user is heard over the robot, pass this long"}
+        default=200, metadata={"help": "aec webrtc: once the user is heard over the robot, pass this long"}
     )
 
     def __post_init__(self) -> None:
@@ -87,6 +123,17 @@ class EchoConfig:
             raise ValueError(f"echo mode must be one of {modes}, got {self.mode!r}")
         if self.sample_rate <= 0:
             raise ValueError(f"sample_rate must be positive, got {self.sample_rate}")
+        engines = [e.value for e in AecEngine]
+        if self.aec_engine not in engines:
+            raise ValueError(f"aec_engine must be one of {engines}, got {self.aec_engine!r}")
+        if not 10 <= self.aec_filter_ms <= 2000:
+            raise ValueError(f"aec_filter_ms must be in [10, 2000], got {self.aec_filter_ms}")
+        if not 0.0 < self.aec_step <= 1.0:
+            raise ValueError(f"aec_step must be in (0, 1], got {self.aec_step}")
+        if not self.aec_double_talk_margin_db > 0:
+            raise ValueError(f"aec_double_talk_margin_db must be > 0, got {self.aec_double_talk_margin_db}")
+        if not -60.0 <= self.echo_guard_floor_db < 0.0:
+            raise ValueError(f"echo_guard_floor_db must be in [-60, 0), got {self.echo_guard_floor_db}")
         if self.mode == EchoMode.AEC.value and self.sample_rate not in APM_RATES:
             raise ValueError(f"aec mode needs sample_rate in {APM_RATES}, got {self.sample_rate}")
         if self.gate_tail_ms < 0:
@@ -97,11 +144,11 @@ class EchoConfig:
             raise ValueError(f"aec_reference_wait_ms must be >= 0, got {self.aec_reference_wait_ms}")
         if self.stamp_tolerance_ms < 1:
             raise ValueError(f"stamp_tolerance_ms must be >= 1, got {self.stamp_tolerance_ms}")
-        if self.echo_guard_margin_db < 0:
+        if not self.echo_guard_margin_db >= 0:
             raise ValueError(f"echo_guard_margin_db must be >= 0, got {self.echo_guard_margin_db}")
         if self.echo_guard_hangover_ms < 0:
             raise ValueError(f"echo_guard_hangover_ms must be >= 0, got {self.echo_guard_hangover_ms}")
-        if self.echo_guard_release_db_per_s <= 0:
+        if not self.echo_guard_release_db_per_s > 0:
             raise ValueError(
                 f"echo_guard_release_db_per_s must be > 0, got {self.echo_guard_release_db_per_s}"
             )
@@ -111,6 +158,10 @@ class EchoConfig:
     @property
     def echo_mode(self) -> EchoMode:
         return EchoMode(self.mode)
+
+    @property
+    def engine(self) -> AecEngine:
+        return AecEngine(self.aec_engine)
 
 
 @dataclass(frozen=True)
@@ -135,7 +186,8 @@ class EchoStats:
     mic_resyncs: int = 0  # mic stamps off the timeline (lost block, jump back): timeline restarted
     aec_frames: int = 0
     aec_frames_unreferenced: int = 0  # released after the full wait, their reference still missing
-    guard_frames_muted: int = 0  # aec frames the echo guard held back as residual echo
+    guard_frames_muted: int = 0  # aec frames taken down whole as residual echo (guard / suppressor)
+    double_talk_frames: int = 0  # aec linear: frames the filter did not adapt on (someone talked)
 
 
 class ReferenceTimeline:
@@ -336,10 +388,11 @@ class EchoController:
     """Turns the raw mic stream into the stream the VAD may hear.
 
     aec mode: mic and reference are brought to `sample_rate` (stateful resamplers, one per
-    stream) and laid on one clock by their stamps. Mic audio goes through AEC3 in 10 ms frames:
-    at once while nothing plays or its reference is in, else after up to aec_reference_wait_ms.
-    Every output block is stamped with the capture time of its first sample (AEC3's own delay
-    taken off), and a jump in the mic stamps restarts the timeline there instead of shifting it.
+    stream) and laid on one clock by their stamps. Mic audio goes through the echo engine
+    (LinearAec or Aec3) in 10 ms frames: at once while nothing plays or its reference is in, else
+    after up to aec_reference_wait_ms. Every output block is stamped with the capture time of
+    its first sample (the engine's own delay taken off), and a jump in the mic stamps restarts
+    the timeline there instead of shifting it.
     """
 
     def __init__(self, config: EchoConfig) -> None:
@@ -349,7 +402,7 @@ class EchoController:
         self.stats = EchoStats()
         self._gate = EchoGate(config.gate_tail_ms)
         self._speaking = False
-        self._aec: Aec3 | None = None
+        self._aec: Aec3 | LinearAec | None = None
         self._reference = ReferenceTimeline(sample_rate, config.reference_history_ms)
         tolerance_ns = config.stamp_tolerance_ms * 1_000_000
         self._mic_in = StampedResampler(sample_rate, tolerance_ns)
@@ -362,7 +415,22 @@ class EchoController:
         self._segments: deque[_Segment] = deque()
         self._processed_until_ns = 0  # capture time up to which mic audio went through AEC3
         self._guard: EchoGuard | None = None
-        if self.mode is EchoMode.AEC:
+        self._linear: LinearAec | None = None
+        if self.mode is EchoMode.AEC and config.engine is AecEngine.LINEAR:
+            if sample_rate not in APM_RATES:
+                raise ValueError(f"AEC needs a sample rate in {APM_RATES}, got {sample_rate}")
+            self._aec = self._linear = LinearAec(
+                sample_rate,
+                APM_FRAME_MS,
+                filter_ms=config.aec_filter_ms,
+                step=config.aec_step,
+                double_talk_margin_db=config.aec_double_talk_margin_db,
+                suppress_residual=config.echo_guard,
+                residual_margin_db=config.echo_guard_margin_db,
+                residual_floor_db=config.echo_guard_floor_db,
+                tail_decay_db_per_s=config.echo_guard_release_db_per_s,
+            )
+        elif self.mode is EchoMode.AEC:
             self._aec = Aec3(sample_rate, config)
             if config.echo_guard:
                 self._guard = EchoGuard(config, APM_FRAME_MS)
@@ -490,6 +558,10 @@ class EchoController:
                 self.stats.guard_frames_muted += 1
             processed[offset : offset + step] = cleaned
             self.stats.aec_frames += 1
+        if self._linear is not None:
+            self.stats.double_talk_frames = self._linear.canceller.stats.double_talk_blocks
+            if self._linear.suppressor is not None:
+                self.stats.guard_frames_muted = self._linear.suppressor.frames_muted
         self._pending = self._pending[ready:].copy()
         self._fed += ready
         self._processed_until_ns = self._input_time(self._fed)

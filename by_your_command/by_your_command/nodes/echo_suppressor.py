@@ -42,7 +42,8 @@ class EchoSuppressorNode(Node):
         self._reported: tuple[int, ...] = ()
         self.create_timer(STATS_PERIOD_S, self._report)
         aec = (
-            f" aec_delay={self.echo.aec_delay_samples * 1000 / self.sample_rate:.1f}ms "
+            f" aec_engine={self.config.aec_engine} "
+            f"aec_delay={self.echo.aec_delay_samples * 1000 / self.sample_rate:.1f}ms "
             f"echo_guard={self.config.echo_guard}"
             if self.echo.mode is EchoMode.AEC
             else ""
@@ -104,7 +105,8 @@ class EchoSuppressorNode(Node):
                 f"audio blocks in={stats.blocks_in} out={stats.blocks_out} gated={stats.blocks_gated} "
                 f"rejected={stats.blocks_rejected} reference_rejected={stats.reference_rejected} "
                 f"aec_frames={stats.aec_frames} unreferenced={stats.aec_frames_unreferenced} "
-                f"guard_muted={stats.guard_frames_muted} mic_resyncs={stats.mic_resyncs} "
+                f"guard_muted={stats.guard_frames_muted} double_talk={stats.double_talk_frames} "
+                f"mic_resyncs={stats.mic_resyncs} "
                 f"reference_restarts={stats.reference_restarts} "
                 f"late_reference_samples={stats.reference_samples_late}"
             )

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-from scipy.signal import lfilter
+from scipy.signal import fftconvolve, lfilter
 
 from by_your_command.audio.pcm import Int16Array, float_to_int16, read_wav, resample, rms_dbfs, to_mono
 
@@ -118,7 +118,7 @@ class Room:
         """What the mic hears of `played` (same length), plus a faint noise floor."""
         rng = np.random.default_rng(seed + 1)
         far = played.astype(np.float64) / 32768.0
-        heard = np.convolve(far, self.impulse_response(rate, seed))[: len(far)]
+        heard = fftconvolve(far, self.impulse_response(rate, seed))[: len(far)]  # long tails: FFT
         heard += 10 ** (self.noise_dbfs / 20) * rng.standard_normal(len(far))
         return float_to_int16(heard)
 
@@ -137,6 +137,19 @@ class Conversation:
     mic: Int16Array
     user_spans: list[tuple[float, float]]
     rate: int
+    near: Int16Array | None = None  # the user alone, as the mic heard them (same length as mic)
+
+
+def trim_silence(pcm: Int16Array, rate: int) -> Int16Array:
+    """`pcm` without its leading and trailing quiet (10 ms frames 40 dB below its loudest), so a
+    span starts where the speech does."""
+    frame = rate // 100
+    count = len(pcm) // frame
+    if count == 0:
+        return pcm
+    power = np.mean(np.square(pcm[: count * frame].astype(np.float64)).reshape(count, frame), axis=1)
+    loud = np.flatnonzero(power > 1e-4 * np.max(power))
+    return pcm[loud[0] * frame : (loud[-1] + 1) * frame]
 
 
 def conversation(
@@ -146,11 +159,14 @@ def conversation(
     user_dbfs: float = -26.0,
     user_at_s: tuple[float, ...] = (),
     lead_s: float = 0.5,
+    user_voice: str | None = None,
+    user_room: Room | None = None,
 ) -> Conversation:
     """The robot says ROBOT_REPLY (espeak-ng en-gb, ~12 s) after `lead_s` of quiet; the mic hears it
-    through `room` at `echo_dbfs` (RMS while it speaks) plus the user (corpus sentences, en-us, at
-    `user_dbfs`) starting at each of `user_at_s`. A robot close to its mic is louder there than a
-    user a metre away: -20 dBFS echo against -26 dBFS user is typical."""
+    through `room` at `echo_dbfs` (RMS while it speaks) plus the user (corpus sentences, en-us, or
+    the same sentences spoken by espeak-ng `user_voice`; at `user_dbfs`, through `user_room` if
+    given) starting at each of `user_at_s`. A robot close to its mic is louder there than a user a
+    metre away: -20 dBFS echo against -26 dBFS user is typical. `near` is the user part alone."""
     from vad.corpus import sessions  # the committed speech corpus (test/data/corpus)
 
     reply = espeak(ROBOT_REPLY, "en-gb", rate)
@@ -158,17 +174,28 @@ def conversation(
     played = np.concatenate([lead, at_level(reply, -18.0), lead])
     echo = room.echo(played, rate).astype(np.float64)
     speaking = slice(len(lead), len(lead) + len(reply))
-    echo *= 10 ** ((echo_dbfs - rms_dbfs(float_to_int16(echo[speaking] / 32768.0))) / 20)
+    if echo_dbfs > -100:
+        echo *= 10 ** ((echo_dbfs - rms_dbfs(float_to_int16(echo[speaking] / 32768.0))) / 20)
+    else:  # no echo at all: the robot's voice does not reach the mic (a baseline)
+        echo[:] = 0.0
     session = next(s for s in sessions() if s.name == "clean_en_us")
     corpus = resample(session.audio(), 16000, rate)
-    mic = echo.copy()
+    near = np.zeros_like(echo)
     spans = []
     for k, start_s in enumerate(user_at_s):
         segment = session.segments[k % len(session.segments)]
-        words = corpus[int(segment.start * rate) : int(segment.end * rate)]
-        words = at_level(words, user_dbfs).astype(np.float64)
+        if user_voice is None:
+            words = corpus[int(segment.start * rate) : int(segment.end * rate)]
+        else:
+            words = espeak(segment.text, user_voice, rate)
+        if user_room is not None:
+            words = user_room.echo(words, rate, seed=k + 5)
+        words = at_level(trim_silence(words, rate), user_dbfs).astype(np.float64)
         at = int(start_s * rate)
-        words = words[: max(0, len(mic) - at)]
-        mic[at : at + len(words)] += words
+        words = words[: max(0, len(near) - at)]
+        near[at : at + len(words)] += words
         spans.append((start_s, start_s + len(words) / rate))
-    return Conversation(played, float_to_int16(mic / 32768.0), spans, rate)
+    mic = echo + near
+    return Conversation(
+        played, float_to_int16(mic / 32768.0), spans, rate, near=float_to_int16(near / 32768.0)
+    )

@@ -1,0 +1,335 @@
+"""A long linear echo canceller and a per-band residual echo suppressor, for double talk.
+
+WebRTC AEC3 (through livekit, which exposes no tuning) models ~50 ms of echo path and leaves the
+rest to a suppressor that also takes the user down while the robot talks: with the robot's echo
+as loud as the user at the mic, the user came out of AEC3 correlating ~0.6 with what they said
+(0.4 with the whole-frame guard after it). This pair keeps the near end linear instead:
+
+- LinearEchoCanceller: a partitioned-block frequency-domain adaptive filter (overlap-save, one
+  10 ms block per partition, proportionate steps) covering the room response, in two copies: a
+  background filter adapts on every block; the foreground filter, whose output is used, takes
+  the background's coefficients only when they cancel better and no double talk is detected
+  (the output jumps against the mic above what echo alone leaves). Its output is mic minus the
+  echo estimate: the user's voice is not touched.
+- ResidualEchoSuppressor: per frequency bin, the echo the filter leaves is estimated from the
+  filter's echo estimate and from the reference's envelope (for what the filter has not learned
+  yet), with per-band shares learned as running medians over bands the user is not clearly
+  above, held with a reverberant decay; bins where it dominates are turned down softly, bins
+  where the user dominates pass almost whole, and frames with nothing clearly above it are
+  taken down whole (residual speech must not start utterances in the VAD).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from by_your_command.audio.pcm import Int16Array
+
+FloatArray = npt.NDArray[np.float64]
+ComplexArray = npt.NDArray[np.complex128]
+
+INT16_SCALE = 32768.0
+PROPORTION_FLOOR = 0.1  # every partition adapts at least this share of the busiest one's step
+REGULARISATION = 1e-6  # per-bin power floor (full scale 1.0), keeps silent bins from blowing up
+REFERENCE_FLOOR = 1e-6  # reference power per sample (-60 dBFS) below which nothing adapts
+ECHO_LEFT_STEP_DB = 0.2  # double-talk detector's quantile tracker: step down per block...
+ECHO_LEFT_QUANTILE = 0.5  # ... and up by STEP * q / (1 - q): slow, so a voice cannot drag it up
+DOUBLE_TALK_SMOOTHING = 0.3  # error and mic energies for the detector: weight of the newest block
+DOUBLE_TALK_HOLD_BLOCKS = 30  # once detected, double talk is assumed this many blocks more
+DOUBLE_TALK_STEP = 0.25  # the background's step in double talk, relative to the usual
+DOUBLE_TALK_CREEP_DB = 0.02  # the detector's tracker creeps up this much per double-talk block
+COMPARE_SMOOTHING = 0.15  # background vs foreground error energy: weight of the newest block
+COPY_RATIO = 0.9  # background error 10 % below the foreground's: copy it over
+RESET_RATIO = 4.0  # background error this far above the foreground's (+6 dB): it diverged, reset
+RESIDUAL_BANDS = 16  # the residual's shares of the estimate and of the reference, learned per band
+RESIDUAL_INITIAL_DB = 0.0  # before learning: residual as loud as the estimate
+RESIDUAL_STEP_DB = 0.2  # quantile tracker: step down per block (20 dB/s at 10 ms)...
+RESIDUAL_QUANTILE = 0.5  # ... and up by STEP * q / (1 - q): the median (a voice cannot drag it up)
+RESIDUAL_OVERESTIMATE = 4.0  # gain = 1 - this x residual / power (the residual is a median: 6 dB up)
+COUPLING_INITIAL_DB = 6.0  # before learning: echo up to 6 dB louder than the reference
+USER_EVIDENCE = 0.1  # energy clearly above the residual, against the residual (-10 dB), that is the user
+RESIDUAL_MUTE_DB = -40.0  # frames with echo alone (nothing clearly above the residual) go down this
+USER_HANGOVER_BLOCKS = 10  # after the user was evident, blocks not muted whole (100 ms)
+ECHO_FLOOR = 1e-8  # echo estimate power per sample (-80 dBFS) below which a band is not learned
+
+
+@dataclass
+class LinearEchoStats:
+    blocks: int = 0
+    foreground_updates: int = 0  # background coefficients copied to the output filter
+    background_resets: int = 0  # background diverged (double talk) and restarted from the foreground
+    double_talk_blocks: int = 0  # blocks judged double talk: slow background, no copy to the output
+
+
+class LinearEchoCanceller:
+    """Removes the linear echo of `reference` from `mic`, one `block` of samples at a time.
+
+    Output sample i is the mic's sample i minus the echo predicted from the reference up to i
+    (no added delay). The filter spans `partitions` blocks of reference history."""
+
+    def __init__(self, block: int, partitions: int, step: float, margin_db: float) -> None:
+        if block <= 0 or partitions <= 0:
+            raise ValueError(f"block and partitions must be positive, got {block}, {partitions}")
+        if not 0.0 < step <= 1.0:
+            raise ValueError(f"step must be in (0, 1], got {step}")
+        self.block = block
+        self.partitions = partitions
+        self._step = step
+        self._margin_db = margin_db
+        self.echo_left_db = 0.0  # output vs mic in single talk (-ERLE), learned
+        self._error_energy = 0.0
+        self._hold = 0  # blocks double talk is still assumed
+        self._mic_energy = 0.0
+        self._up_db = ECHO_LEFT_STEP_DB * ECHO_LEFT_QUANTILE / (1 - ECHO_LEFT_QUANTILE)
+        self._fft = 2 * block
+        bins = block + 1
+        self._reference = np.zeros(self._fft)  # last two blocks of reference, overlap-save
+        self._history = np.zeros((partitions, bins), dtype=np.complex128)  # X of the latest blocks
+        self._background = np.zeros((partitions, bins), dtype=np.complex128)
+        self._foreground = np.zeros((partitions, bins), dtype=np.complex128)
+        self._power = np.zeros(bins)
+        self._background_error = 0.0
+        self._foreground_error = 0.0
+        self._constrain_next = 0  # one partition per block is made causal again (round robin)
+        self.echo_spectrum: ComplexArray = np.zeros(bins, dtype=np.complex128)  # of the last block
+        self.stats = LinearEchoStats()
+
+    @property
+    def reference_spectrum(self) -> ComplexArray:
+        """Spectrum of the reference's latest two blocks."""
+        latest: ComplexArray = self._history[0]
+        return latest
+
+    def process(self, mic: FloatArray, reference: FloatArray) -> FloatArray:
+        """`mic` minus the echo of `reference` (both one block, full scale 1.0) played meanwhile."""
+        n = self.block
+        self._reference[:n] = self._reference[n:]
+        self._reference[n:] = reference
+        self._history = np.roll(self._history, 1, axis=0)
+        self._history[0] = np.fft.rfft(self._reference)
+        # Normalise by the power over the whole span: a quiet block after a loud one must not
+        # take a huge step on the older partitions.
+        self._power = np.sum(np.abs(self._history) ** 2, axis=0)
+
+        foreground_echo = np.einsum("pk,pk->k", self._foreground, self._history)
+        background_echo = np.einsum("pk,pk->k", self._background, self._history)
+        foreground_error = mic - np.fft.irfft(foreground_echo, self._fft)[n:]
+        background_error = mic - np.fft.irfft(background_echo, self._fft)[n:]
+        if float(np.dot(reference, reference)) > REFERENCE_FLOOR * n:
+            # In double talk the background keeps learning, slower, and the output filter takes
+            # nothing from it: what it learns there may be the user's voice.
+            double_talk = self._double_talk(foreground_error, mic)
+            self._adapt(background_error, DOUBLE_TALK_STEP if double_talk else 1.0)
+            self._compare(foreground_error, background_error, copy=not double_talk)
+        self.echo_spectrum = foreground_echo
+        self.stats.blocks += 1
+        return foreground_error
+
+    def _adapt(self, error: FloatArray, scale: float) -> None:
+        n = self.block
+        padded = np.zeros(self._fft)
+        padded[n:] = error
+        spectrum = np.fft.rfft(padded)
+        # Proportionate steps (as in Speex's MDF): partitions holding more of the room's response
+        # adapt faster, so the direct path and early reflections converge first.
+        energy = np.sqrt(np.sum(np.abs(self._background) ** 2, axis=1))
+        energy += PROPORTION_FLOOR * float(np.max(energy)) + 1e-9
+        share = self.partitions * energy / float(np.sum(energy))
+        gain = scale * self._step / (self._power + REGULARISATION * n)
+        self._background += share[:, None] * gain * np.conj(self._history) * spectrum
+        # Unconstrained updates let a partition's impulse response wrap around; constrain one
+        # partition per block (its second half zeroed in time) so no error builds up.
+        p = self._constrain_next
+        taps = np.fft.irfft(self._background[p], self._fft)
+        taps[n:] = 0.0
+        self._background[p] = np.fft.rfft(taps)
+        self._constrain_next = (p + 1) % self.partitions
+
+    def _double_talk(self, error: FloatArray, mic: FloatArray) -> bool:
+        """True when the output is `margin_db` louder against the mic than echo alone leaves it
+        (a running quantile, learned from the other blocks): someone is talking, freeze."""
+        # Energies smoothed over a few blocks: the robot's pauses (error ~ mic, both quiet) weigh
+        # little against its syllables, so the ratio stays near -ERLE until someone talks.
+        a = DOUBLE_TALK_SMOOTHING
+        self._error_energy = (1 - a) * self._error_energy + a * float(np.dot(error, error))
+        self._mic_energy = (1 - a) * self._mic_energy + a * float(np.dot(mic, mic))
+        ratio = 10 * math.log10((self._error_energy + 1e-12) / (self._mic_energy + 1e-12))
+        if ratio > self.echo_left_db + self._margin_db:
+            self._hold = DOUBLE_TALK_HOLD_BLOCKS  # the user's quieter syllables come next
+        if self._hold > 0:
+            self._hold -= 1
+            self.echo_left_db += DOUBLE_TALK_CREEP_DB  # an echo path change must not freeze it for good
+            self.stats.double_talk_blocks += 1
+            return True
+        self.echo_left_db += self._up_db if ratio > self.echo_left_db else -ECHO_LEFT_STEP_DB
+        return False
+
+    def _compare(self, foreground: FloatArray, background: FloatArray, copy: bool) -> None:
+        a = COMPARE_SMOOTHING
+        self._foreground_error = (1 - a) * self._foreground_error + a * float(np.dot(foreground, foreground))
+        self._background_error = (1 - a) * self._background_error + a * float(np.dot(background, background))
+        if copy and self._background_error < COPY_RATIO * self._foreground_error:
+            self._foreground = self._background.copy()
+            self._foreground_error = self._background_error
+            self.stats.foreground_updates += 1
+        elif self._background_error > RESET_RATIO * max(self._foreground_error, 1e-12):
+            self._background = self._foreground.copy()
+            self._background_error = self._foreground_error
+            self.stats.background_resets += 1
+
+
+class ResidualEchoSuppressor:
+    """Per-bin soft suppression of what the linear canceller leaves of the echo.
+
+    Works on windows of two blocks (sqrt-Hann, overlap-add): the output lags the input by one
+    block. Per band, how loud the residual gets against the canceller's echo estimate is
+    learned as a running RESIDUAL_QUANTILE quantile of (error - estimate) in dB, from blocks
+    where the band is not clearly above it (`margin_db`: the user's voice is, the echo is not);
+    it starts at 0 dB, strict while the filter converges. Residual per bin = that share of the
+    estimate, held with a reverberant decay of `tail_decay_db` per block (the room's tail the
+    filter does not span); gain = 1 - `overestimate` x residual / error power, at least `floor`."""
+
+    def __init__(
+        self,
+        block: int,
+        overestimate: float,
+        floor: float,
+        tail_decay_db: float,
+        margin_db: float,
+        mute: float,
+    ) -> None:
+        self.block = block
+        self._fft = 2 * block
+        bins = block + 1
+        self._window = np.sqrt(np.hanning(self._fft + 1)[: self._fft])  # periodic: sums to 1 at hop
+        self._input = np.zeros(self._fft)
+        self._overlap = np.zeros(block)
+        self._overestimate = overestimate
+        self._floor = floor
+        self._decay = 10 ** (-tail_decay_db / 10)
+        self._margin_db = margin_db
+        self._margin = 10 ** (margin_db / 10)
+        self._mute = mute
+        self._user_frames = 0  # blocks still passed softly since the user was last evident
+        self.frames_muted = 0  # blocks taken down whole as echo alone
+        edges = np.linspace(0, bins, RESIDUAL_BANDS + 1).astype(int)
+        self._band_of_bin = np.repeat(np.arange(RESIDUAL_BANDS), np.diff(edges))
+        self._band_starts = edges[:-1]
+        self.residual_db = np.full(RESIDUAL_BANDS, RESIDUAL_INITIAL_DB)  # per band, vs the estimate
+        self.coupling_db = np.full(RESIDUAL_BANDS, COUPLING_INITIAL_DB)  # per band, vs the reference
+        self._envelope = np.zeros(bins)  # reference power per bin, held with the tail's decay
+        self._up_db = RESIDUAL_STEP_DB * RESIDUAL_QUANTILE / (1 - RESIDUAL_QUANTILE)
+        self._residual = np.zeros(bins)
+        self.last_gain: FloatArray = np.ones(bins)
+
+    def process(
+        self, error: FloatArray, echo_spectrum: ComplexArray, reference_spectrum: ComplexArray, active: bool
+    ) -> FloatArray:
+        """One block of canceller output; `echo_spectrum` the canceller's echo estimate for it,
+        `reference_spectrum` the reference's (latest two blocks); `active` False when nothing
+        played lately (then everything passes)."""
+        n = self.block
+        self._input[:n] = self._input[n:]
+        self._input[n:] = error
+        spectrum = np.fft.rfft(self._window * self._input)
+        error_power = np.abs(spectrum) ** 2
+        # The estimate is of an unwindowed block in a zero-padded frame: scale to this window.
+        echo_power = np.abs(echo_spectrum) ** 2 * 0.5
+        self._envelope = np.maximum(np.abs(reference_spectrum) ** 2 * 0.5, self._decay * self._envelope)
+        if active:
+            self.residual_db = self._learn(self.residual_db, error_power, echo_power)
+            self.coupling_db = self._learn(self.coupling_db, error_power, self._envelope)
+            share = 10 ** (self.residual_db[self._band_of_bin] / 10)
+            coupling = 10 ** (self.coupling_db[self._band_of_bin] / 10)
+            # The estimate misses what the filter has not learned yet (it starts empty): the
+            # reference's envelope times the coupling left covers that until the filter has.
+            estimate = np.maximum(share * echo_power, coupling * self._envelope)
+            self._residual = np.maximum(estimate, self._decay * self._residual)
+            gain = 1.0 - self._overestimate * self._residual / (error_power + 1e-12)
+            gain = np.clip(gain, self._floor, 1.0)
+            # Echo alone (nothing clearly above the residual): all of the frame goes down to
+            # `mute`, so what is left of the robot's voice does not sound like speech to the VAD.
+            clear = error_power > self._residual * self._margin
+            if float(np.sum(error_power[clear])) < float(np.sum(self._residual)) * USER_EVIDENCE:
+                if self._user_frames <= 0:
+                    gain = np.full_like(gain, self._mute)
+                    self.frames_muted += 1
+                else:
+                    self._user_frames -= 1
+            else:
+                self._user_frames = USER_HANGOVER_BLOCKS
+        else:
+            self._residual[:] = 0.0
+            gain = np.ones_like(error_power)
+        self.last_gain = gain
+        frame = np.fft.irfft(gain * spectrum, self._fft) * self._window
+        out = self._overlap + frame[:n]
+        self._overlap = frame[n:].copy()
+        return out
+
+    def _learn(self, tracker_db: FloatArray, error_power: FloatArray, echo_power: FloatArray) -> FloatArray:
+        """`tracker_db` (per band, error vs `echo_power`) stepped towards its quantile, in the
+        bands that sound and are not clearly above it (those are the user)."""
+        error_band = np.add.reduceat(error_power, self._band_starts)
+        echo_band = np.add.reduceat(echo_power, self._band_starts)
+        sounding = echo_band > ECHO_FLOOR * self.block
+        ratio = 10 * np.log10((error_band + 1e-15) / (echo_band + 1e-15))
+        learn = sounding & (ratio <= tracker_db + self._margin_db)
+        step = np.where(ratio > tracker_db, self._up_db, -RESIDUAL_STEP_DB)
+        updated: FloatArray = np.where(learn, tracker_db + step, tracker_db)
+        return updated
+
+
+def to_float(pcm: Int16Array) -> FloatArray:
+    return pcm.astype(np.float64) / INT16_SCALE
+
+
+class LinearAec:
+    """The linear canceller, then (if `suppress_residual`) the residual suppressor, on 10 ms
+    int16 frames: same interface as Aec3 (frame_samples, delay_samples, process)."""
+
+    def __init__(
+        self,
+        sample_rate: int,
+        frame_ms: int,
+        filter_ms: int,
+        step: float,
+        double_talk_margin_db: float,
+        suppress_residual: bool,
+        residual_margin_db: float,
+        residual_floor_db: float,
+        tail_decay_db_per_s: float,
+    ) -> None:
+        self.frame_samples = sample_rate * frame_ms // 1000
+        partitions = max(1, -(-filter_ms // frame_ms))
+        self.canceller = LinearEchoCanceller(self.frame_samples, partitions, step, double_talk_margin_db)
+        self.suppressor: ResidualEchoSuppressor | None = None
+        if suppress_residual:
+            self.suppressor = ResidualEchoSuppressor(
+                self.frame_samples,
+                overestimate=RESIDUAL_OVERESTIMATE,
+                floor=10 ** (residual_floor_db / 20),
+                tail_decay_db=tail_decay_db_per_s * frame_ms / 1000,
+                margin_db=residual_margin_db,
+                mute=10 ** (RESIDUAL_MUTE_DB / 20),
+            )
+        self.delay_samples = self.frame_samples if self.suppressor is not None else 0
+        self._span_frames = partitions  # echo of a frame can arrive this many frames later
+        self._quiet_frames = partitions  # frames since the reference was last audible
+
+    def process(self, mic: Int16Array, reference: Int16Array) -> Int16Array:
+        ref = to_float(reference)
+        loud = float(np.dot(ref, ref)) > REFERENCE_FLOOR * len(ref)
+        self._quiet_frames = 0 if loud else self._quiet_frames + 1
+        error = self.canceller.process(to_float(mic), ref)
+        if self.suppressor is not None:
+            active = self._quiet_frames < self._span_frames
+            error = self.suppressor.process(
+                error, self.canceller.echo_spectrum, self.canceller.reference_spectrum, active
+            )
+        out: Int16Array = np.clip(np.rint(error * INT16_SCALE), -32768, 32767).astype(np.int16)
+        return out

@@ -1,0 +1,174 @@
+"""Double talk in aec mode: the user talking over the robot at their usual level comes through the
+echo control nearly undistorted and starts an utterance at once, while the robot's voice alone
+stays attenuated and starts none; the linear canceller converges, and the user's voice does not
+pull its output filter off the echo."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from audio_io.synthetic_room import Conversation, Room, conversation, energy_db
+from audio_io.test_echo import ROBOT_ROOM, utterance_starts
+
+from by_your_command.audio.echo import EchoConfig, EchoController
+from by_your_command.audio.echo_linear import LinearEchoCanceller, ResidualEchoSuppressor, to_float
+from by_your_command.audio.pcm import float_to_int16
+from by_your_command.vad.model import SileroModel
+
+RATE = 16000
+BLOCK = 512
+T0 = 1_700_000_000 * 1_000_000_000
+LINEAR = EchoConfig(mode="aec")  # the default engine: linear + per-band residual suppression
+OLD = EchoConfig(mode="aec", aec_engine="webrtc")  # AEC3 + whole-frame guard (the old default)
+
+
+def output_of(talk: Conversation, config: EchoConfig) -> np.ndarray:
+    """The echo control's output for `talk`, laid on the mic's sample clock by its stamps."""
+    echo = EchoController(config)
+    echo.set_assistant_speaking(True, T0)
+    out = np.zeros(len(talk.mic))
+    for k in range(0, len(talk.mic) // BLOCK * BLOCK, BLOCK):
+        start = T0 + k * 1_000_000_000 // RATE
+        echo.add_reference(talk.played[k : k + BLOCK], RATE, 1, start)
+        for block in echo.process(talk.mic[k : k + BLOCK], start, start) + echo.drain():
+            at = round((block.start_ns - T0) * RATE / 1e9)
+            n = max(0, min(len(block.pcm), len(out) - at))
+            out[at : at + n] = block.pcm[:n]
+    return out
+
+
+def near_end_correlations(talk: Conversation, config: EchoConfig) -> list[float]:
+    """Per user sentence: Pearson correlation of the output with what the same echo control
+    outputs for the user alone, nothing played (the bench's measure)."""
+    assert talk.near is not None
+    heard = output_of(talk, config)
+    alone = output_of(dataclasses.replace(talk, mic=talk.near, played=np.zeros_like(talk.played)), config)
+    values = []
+    for begin, end in talk.user_spans:
+        span = slice(int(begin * RATE), int(end * RATE))
+        a, b = heard[span] - heard[span].mean(), alone[span] - alone[span].mean()
+        values.append(float(np.dot(a, b) / np.sqrt(np.dot(a, a) * np.dot(b, b))))
+    return values
+
+
+@pytest.fixture(scope="module")
+def silero() -> SileroModel:
+    return SileroModel()
+
+
+@pytest.fixture(scope="module")
+def equal_level_talk() -> Conversation:
+    """The robot's echo as loud at the mic as the user (-26 dBFS, a user a metre away)."""
+    return conversation(RATE, ROBOT_ROOM, echo_dbfs=-26.0, user_dbfs=-26.0, user_at_s=(3.0, 6.5, 10.0))
+
+
+@pytest.mark.unit
+def test_a_user_at_equal_level_over_the_robot_comes_through_undistorted(
+    equal_level_talk: Conversation,
+) -> None:
+    correlations = near_end_correlations(equal_level_talk, LINEAR)
+    assert min(correlations) >= 0.9, correlations
+
+
+@pytest.mark.unit
+def test_a_louder_robot_still_leaves_the_user_recognisable() -> None:
+    talk = conversation(RATE, ROBOT_ROOM, echo_dbfs=-20.0, user_dbfs=-26.0, user_at_s=(3.0, 6.5, 10.0))
+    correlations = near_end_correlations(talk, LINEAR)
+    assert min(correlations) >= 0.8, correlations
+
+
+@pytest.mark.unit
+def test_a_user_at_equal_level_starts_an_utterance_within_a_few_frames(
+    equal_level_talk: Conversation, silero: SileroModel
+) -> None:
+    """Silero's onset on the output falls within 8 of its 32 ms frames of the user's first sound
+    (the old guard needed 7-25 frames or missed the sentence)."""
+    starts = utterance_starts(equal_level_talk, LINEAR, silero)
+    for begin, _ in equal_level_talk.user_spans:
+        assert any(begin - 0.1 <= s <= begin + 8 * BLOCK / RATE for s in starts), (begin, starts)
+
+
+@pytest.mark.unit
+def test_the_robot_alone_stays_attenuated_at_least_30_db_and_starts_nothing(silero: SileroModel) -> None:
+    for room in (ROBOT_ROOM, Room(delay_ms=120)):
+        talk = conversation(RATE, room, echo_dbfs=-20.0)
+        out = output_of(talk, LINEAR)
+        lo, hi = 3 * RATE, len(talk.mic) - RATE // 2  # converged, while the robot speaks
+        attenuation = energy_db(talk.mic[lo:hi]) - energy_db(float_to_int16(out[lo:hi] / 32768.0))
+        assert attenuation >= 30.0, (room, attenuation)
+        assert utterance_starts(talk, LINEAR, silero) == []
+
+
+def cancel(
+    canceller: LinearEchoCanceller, mic: np.ndarray, far: np.ndarray
+) -> np.ndarray:  # whole signals, block by block
+    n = canceller.block
+    return np.concatenate(
+        [canceller.process(mic[k : k + n], far[k : k + n]) for k in range(0, len(mic) // n * n, n)]
+    )
+
+
+@pytest.mark.unit
+def test_the_linear_canceller_converges_and_double_talk_does_not_pull_it_off() -> None:
+    rng = np.random.default_rng(5)
+    seconds = 10
+    far = 0.1 * rng.standard_normal(seconds * RATE)
+    room = Room(delay_ms=60, reverb_ms=80, reverb_gain=0.1, noise_dbfs=-90.0)
+    echo = to_float(room.echo(float_to_int16(far), RATE))
+    near = np.zeros_like(far)
+    near[4 * RATE : 6 * RATE] = 0.1 * rng.standard_normal(2 * RATE)  # the user, as loud as the echo
+    canceller = LinearEchoCanceller(block=160, partitions=30, step=0.5, margin_db=6.0)
+    error = cancel(canceller, echo + near, far)
+
+    def attenuation(lo: float, hi: float) -> float:
+        part = slice(int(lo * RATE), int(hi * RATE))
+        return float(10 * np.log10(np.mean(echo[part] ** 2) / np.mean((error[part] - near[part]) ** 2)))
+
+    before, during, after = attenuation(3.0, 4.0), attenuation(4.5, 6.0), attenuation(6.0, 7.0)
+    assert before >= 25.0
+    assert during >= before - 6.0  # the echo is still cancelled under the user's voice
+    assert after >= before - 6.0
+    assert canceller.stats.double_talk_blocks > 0
+
+
+@pytest.mark.unit
+def test_the_residual_suppressor_passes_everything_when_nothing_played() -> None:
+    rng = np.random.default_rng(6)
+    signal = 0.1 * rng.standard_normal(20 * 160)
+    suppressor = ResidualEchoSuppressor(
+        160, overestimate=4.0, floor=0.1, tail_decay_db=0.5, margin_db=6.0, mute=0.01
+    )
+    silence = np.zeros(161, dtype=np.complex128)
+    out = np.concatenate(
+        [suppressor.process(signal[k : k + 160], silence, silence, False) for k in range(0, len(signal), 160)]
+    )
+    np.testing.assert_allclose(out[160:], signal[:-160], atol=1e-9)  # one block late, unchanged
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"aec_engine": "speex"},
+        {"aec_filter_ms": 0},
+        {"aec_step": 0.0},
+        {"aec_step": 1.5},
+        {"aec_step": float("nan")},
+        {"aec_double_talk_margin_db": 0.0},
+        {"aec_double_talk_margin_db": float("nan")},
+        {"echo_guard_floor_db": 0.0},
+        {"echo_guard_floor_db": -90.0},
+        {"echo_guard_margin_db": float("nan")},
+    ],
+)
+def test_bad_double_talk_config_is_a_clear_error(kwargs: dict[str, object]) -> None:
+    with pytest.raises(ValueError):
+        EchoConfig(mode="aec", **kwargs)  # type: ignore[arg-type]
+
+
+@pytest.mark.unit
+def test_the_old_guard_distorted_the_same_double_talk(equal_level_talk: Conversation) -> None:
+    """The reference point the tests above improve on: AEC3 with the whole-frame guard."""
+    assert min(near_end_correlations(equal_level_talk, OLD)) < 0.8
