@@ -267,6 +267,9 @@ class PlaybackEngine:
         self._streams: deque[_Stream] = deque()  # waiting or playing, in play order
         self._queued_total = 0
         self._current: _Stream | None = None  # the reply status reports on
+        # Replies that were `_current` before the one now: their end is reported once it comes
+        # (back to back, the next reply's status would otherwise hide that the first finished).
+        self._retired: list[_Stream] = []
         self._pending: _Stream | None = None  # stream of the block handed out, not yet committed
         self._in_flight: deque[_InFlight] = deque()
         self._play_end_ns = 0  # when the audio handed to the sink so far ends
@@ -360,6 +363,7 @@ class PlaybackEngine:
                     self._queued_total -= len(pcm)
                     head.started = True
                     head.requeued_ahead = 0
+                    self._retire_current(head)
                     self._current = self._pending = head
                     return PlayBlock(head.stream_id, pcm)
                 if not head.ended and len(self._streams) == 1:
@@ -369,8 +373,21 @@ class PlaybackEngine:
                     self._closed_ids.add(head.stream_id)
                     self.stats.streams_superseded += 1
                 elif not head.started:
+                    self._retire_current(head)
                     self._current = head  # a reply with no audio at all: report it finished
             return None
+
+    def _retire_current(self, new: _Stream) -> None:
+        old = self._current
+        if old is not None and old is not new and old.cut_at_ns is None and old not in self._retired:
+            self._retired.append(old)
+
+    def take_retired(self, now_ns: int) -> tuple[PlaybackState, ...]:
+        """The final state of each earlier reply that has stopped sounding since (once each)."""
+        with self._lock:
+            done = [s for s in self._retired if s.cut_at_ns is not None or now_ns >= s.play_end_ns]
+            self._retired = [s for s in self._retired if s not in done]
+            return tuple(self._state(s, now_ns) for s in done if s.cut_at_ns is None)
 
     def wants(self, block: PlayBlock) -> bool:
         """False if the handed-out block's reply was cut (then `give_back` drops it), paused, or
@@ -627,6 +644,7 @@ class PlayerLoop:
         on_error: ErrorHandler = _log_error,
         max_pause_ns: int = 5 * NS_PER_S,
         on_expired: Callable[[CutOutcome], None] = lambda outcome: None,
+        on_retired: Callable[[tuple[PlaybackState, ...]], None] = lambda states: None,
     ) -> None:
         self.engine = engine
         self.sink = sink
@@ -638,6 +656,7 @@ class PlayerLoop:
         self._idle_poll_s = idle_poll_s
         self._max_pause_ns = max_pause_ns
         self._on_expired = on_expired
+        self._on_retired = on_retired
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._cancel = threading.Event()  # set by interrupt/stop: the block waiting for the sink is void
@@ -753,6 +772,9 @@ class PlayerLoop:
             self._on_expired(outcome)
 
     def _report_changes(self) -> None:
+        retired = self.engine.take_retired(self.clock_ns())
+        if retired:
+            self._on_retired(retired)
         state = self.engine.status(self.clock_ns())
         key = (
             state.stream_id,

@@ -87,6 +87,7 @@ class SimpleAudioPlayerNode(Node):
             on_error=self._on_loop_error,
             max_pause_ns=self.config.max_pause_ms * 1_000_000,
             on_expired=self._on_pause_expired,
+            on_retired=self._on_retired,
         )
         # RELIABLE: agents send replies in bursts faster than real time; best effort would drop them.
         self.create_subscription(AudioChunk, "response_voice", self._on_voice, RELIABLE)
@@ -186,6 +187,13 @@ class SimpleAudioPlayerNode(Node):
         )
         self._publish_cut(outcome)
         self._publish_state()
+
+    def _on_retired(self, states: tuple[PlaybackState, ...]) -> None:
+        """On the player thread: replies that ended while the next one already played (their
+        `finished` would otherwise never be reported: the status follows the reply playing)."""
+        with self._state_lock:
+            for state in states:
+                self._publish(self.status_pub, self._status_msg(state))
 
     def _on_played(self, block: PlayBlock, start_ns: int) -> None:
         """On the player thread: the AEC reference."""

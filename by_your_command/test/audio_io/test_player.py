@@ -293,6 +293,20 @@ def test_responses_play_in_order() -> None:
 
 
 @pytest.mark.unit
+def test_a_reply_followed_at_once_by_the_next_still_reports_its_end() -> None:
+    """The status follows the reply playing: back to back, the first one's `finished` was never
+    published, and a listener waiting for it (the demo) waited for ever."""
+    eng = engine()
+    eng.enqueue(chunk("a", tone(0.04, RATE), end_of_stream=True), T0)
+    eng.enqueue(chunk("b", tone(0.04, RATE), end_of_stream=True), T0)
+    _, end = play_blocks(eng, T0)
+    assert eng.status(end).stream_id == "b"
+    [retired] = eng.take_retired(end)
+    assert (retired.stream_id, retired.finished, retired.played_ms) == ("a", True, 40)
+    assert eng.take_retired(end) == ()  # once
+
+
+@pytest.mark.unit
 def test_queue_overflow_is_counted() -> None:
     eng = engine(max_queue_s=0.1)
     eng.enqueue(chunk("r", tone(0.5, RATE)), T0)

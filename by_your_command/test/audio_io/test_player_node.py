@@ -176,6 +176,9 @@ def test_a_paused_reply_holds_its_place_and_resumes_where_it_stopped(
         )
         graph.until(lambda: any(s.finished for s in graph.statuses("resp-2")), "resp-2 played after resp-1")
         assert not any(s.interrupted for s in graph.statuses("resp-1"))
+        # resp-1 ended while resp-2 played on: its end is reported all the same
+        graph.until(lambda: any(s.finished for s in graph.statuses("resp-1")), "resp-1 reported finished")
+        assert [s.played_ms for s in graph.statuses("resp-1") if s.finished] == [1000]
         played = [s.played_ms for s in graph.statuses("resp-1")]
         assert played == sorted(played)  # continuous: never back to 0 after the resume
     samples, rate, _ = read_wav(wav)
