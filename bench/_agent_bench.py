@@ -77,6 +77,10 @@ class EmulatorThread(ThreadedEmulator[OpenAIRealtimeEmulator]):
     def received_types(self) -> list[str]:
         return self._read(self.handle.received_types)
 
+    def events(self, type_: str) -> list[dict[str, Any]]:
+        """The client events of one type the emulator received, in order."""
+        return self._read(lambda: [r.event for r in self.handle.received if r.event["type"] == type_])
+
 
 class GeminiEmulatorThread(ThreadedEmulator[gemini_live.GeminiLiveEmulator]):
     """The Gemini Live emulator (TLS: the SDK only speaks wss)."""
@@ -213,10 +217,12 @@ class BenchNode:
     metrics: list[Stamped] = field(default_factory=list)
     diagnostics: list[Any] = field(default_factory=list)
     speaking: list[Any] = field(default_factory=list)
+    activity_heard: list[Stamped] = field(default_factory=list)  # voice_activity, whoever published it
+    interruptions: list[Stamped] = field(default_factory=list)  # interruption_signal (cut, pause, resume)
 
     def __post_init__(self) -> None:
         import rclpy
-        from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, PlaybackStatus
+        from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption, PlaybackStatus
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
@@ -238,6 +244,8 @@ class BenchNode:
         node.create_subscription(String, "agent_metrics", stamp(self.metrics), RELIABLE)
         node.create_subscription(Bool, "assistant_speaking", self.speaking.append, LATCHED)
         node.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, RELIABLE)
+        node.create_subscription(Bool, "voice_activity", stamp(self.activity_heard), RELIABLE)
+        node.create_subscription(Interruption, "interruption_signal", stamp(self.interruptions), RELIABLE)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(node)
         self._thread = threading.Thread(target=self.executor.spin, daemon=True)
@@ -312,11 +320,22 @@ class BenchNode:
         )
 
 
+@dataclass(frozen=True)
+class ExtraNode:
+    """A node of the package started before the bridge (the VAD, echo control), ready once a line
+    of its output matches `ready`."""
+
+    module: str  # by_your_command.nodes.<module>
+    params: tuple[str, ...] = ()  # name:=value
+    ready: str = ""  # a regular expression; "" = ready once started
+
+
 @dataclass
 class AgentGraph:
     bench: BenchNode
     emulator: EmulatorThread | GeminiEmulatorThread
     processes: list[Process]
+    wav: Path | None = None  # what the player played (its header is written when it stops)
 
     def check(self) -> None:
         for process in self.processes:
@@ -329,10 +348,11 @@ def agent_graph(
     label: str,
     provider: str = "openai",
     forwarder: tuple[str, ...] | None = None,
+    nodes: tuple[ExtraNode, ...] = (),
     **settings: Any,
 ) -> Iterator[AgentGraph]:
-    """Player (and frame_forwarder with `forwarder` parameters), bridge and agent processes in a
-    fresh namespace, the `provider`'s emulator, the bench node."""
+    """Player (and frame_forwarder with `forwarder` parameters, and `nodes`), bridge and agent
+    processes in a fresh namespace, the `provider`'s emulator, the bench node."""
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     namespace = f"/bench_{label}_{provider}_{os.getpid()}"
     with ExitStack() as stack:
@@ -377,6 +397,14 @@ def agent_graph(
                 return subscribed > 0 and publishing > 0
 
             wait_until(forwarder_up, 60, "the frame forwarder")
+        for extra in nodes:
+            process = started(Process(node_command(extra.module, namespace, *extra.params)))
+
+            def extra_up(process: Process = process, pattern: str = extra.ready) -> bool:
+                process.check()
+                return not pattern or process.find(pattern) is not None
+
+            wait_until(extra_up, 120, extra.module)
         bridge = started(
             Process(node_command("ros_ai_bridge", namespace, "port:=0", "diagnostics_period_s:=0.2"))
         )
@@ -405,7 +433,7 @@ def agent_graph(
                 },
             )
         )
-        graph = AgentGraph(bench, emulator, processes)
+        graph = AgentGraph(bench, emulator, processes, tmp / "played.wav")
         requests = setup_requests(data)
 
         def agent_ready() -> bool:

@@ -7,6 +7,7 @@ is read from /proc over the measuring window. Same-run baseline: an empty rclpy 
 (the floor any ROS process costs here), measured over the same window.
 
 usage: scripts/run.sh python bench/bench_idle_cpu.py [--warmup-s 20] [--measure-s 30] [--set NODE.PARAM=V]
+       [--stop-spotter-ab]   # the graph twice, safety stop spotter on then off: its idle cost
 """
 
 from __future__ import annotations
@@ -37,6 +38,10 @@ EMPTY_NODE = (
     "signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())\n"
     "try:\n    rclpy.spin(node)\nexcept Exception:\n    pass\n"
 )
+
+
+# CPU % of one core per process name in the last measure() (for --stop-spotter-ab).
+last_cpu: dict[str, float] = {}
 
 
 def emit(figure: str, value: float, unit: str, **extra: Any) -> None:
@@ -100,6 +105,7 @@ async def measure(args: argparse.Namespace, workdir: Path) -> int:
         cpu = entry.cpu_percent(since=args.warmup_s)
         name = names.get(pid, f"other[{pid}]")
         ratio = round(cpu / floor, 1) if floor > 0 else None  # an empty node can read 0 ticks
+        last_cpu[name] = cpu
         if pid != baseline.pid:
             total += cpu
             emit("process_cpu", cpu, "% of one core", process=name, ratio_to_empty_node=ratio)
@@ -115,9 +121,32 @@ def main() -> int:
     parser.add_argument("--warmup-s", type=float, default=20.0)
     parser.add_argument("--measure-s", type=float, default=30.0)
     parser.add_argument("--set", action="append", default=[], help="NODE.PARAM=VALUE passed to byc up")
+    parser.add_argument(
+        "--stop-spotter-ab",
+        action="store_true",
+        help="measure twice, silero_vad_node.stop_spotter on then off, and report the spotter's idle cost",
+    )
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory(prefix="byc-idle-") as workdir:
-        return asyncio.run(measure(args, Path(workdir)))
+    if not args.stop_spotter_ab:
+        with tempfile.TemporaryDirectory(prefix="byc-idle-") as workdir:
+            return asyncio.run(measure(args, Path(workdir)))
+    vad: dict[str, float] = {}
+    for label, extra in (("on", "true"), ("off", "false")):
+        print(f"\n== safety stop spotter {label} ==")
+        run_args = argparse.Namespace(
+            **{**vars(args), "set": [*args.set, f"silero_vad_node.stop_spotter={extra}"]}
+        )
+        with tempfile.TemporaryDirectory(prefix="byc-idle-") as workdir:
+            if asyncio.run(measure(run_args, Path(workdir))):
+                return 1
+        vad[label] = last_cpu.get("silero_vad_node", float("nan"))
+    cost = vad["on"] - vad["off"]
+    emit("stop_spotter_idle_cpu", cost, "% of one core", vad_on=vad["on"], vad_off=vad["off"], goal=1.5)
+    print(
+        f"\nsafety stop spotter, idle: +{cost:.2f} % of one core "
+        f"(VAD node {vad['on']:.2f} vs {vad['off']:.2f})"
+    )
+    return 0
 
 
 if __name__ == "__main__":

@@ -7,6 +7,12 @@ utterance begun before the robot spoke to its end (vad/half_duplex.py). Sleep/wa
 `wake_cmd`, mute via `voice_active`, wake/sleep phrases on `prompt_text`, and (`spoken_wake`) a
 wake phrase spoken while asleep, decoded here; the state is latched on `attention_state`. Logic
 lives in by_your_command.vad.
+
+Safety stop (`stop_spotter`): every input block also goes to a local stop spotter
+(by_your_command.safety) before any gate, sleep or mute check, so a spoken "stop" is heard while
+the robot speaks, asleep and muted. A stop publishes `stop` on `response_cmd`, a blanket cut on
+`interruption_signal` (reason "safety_stop"), the phrase on `safety_stop`, and says "Stopping."
+on `response_voice`. The robot's own voice is recognised through `audio_played`.
 """
 
 from __future__ import annotations
@@ -15,16 +21,21 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 
+import numpy as np
 from builtin_interfaces.msg import Time
-from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance
+from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
-from by_your_command.nodes._audio_msgs import int16_field, pcm_of
+from by_your_command.nodes._audio_msgs import int16_field, make_audio_chunk, pcm_of
 from by_your_command.nodes._delivery import DeliveryCheck
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
+from by_your_command.offline.speaker import Speaker, SpeakerConfig, SpeechError
+from by_your_command.safety.spotter import Detection, StopSpotter
+from by_your_command.safety.worker import SpotterWorker
 from by_your_command.vad.attention import Attention, AttentionState, PhraseCommand, PhraseMatcher
 from by_your_command.vad.config import VadConfig
 from by_your_command.vad.detector import VoiceDetector
@@ -43,6 +54,11 @@ NS_PER_S = 1_000_000_000
 STATS_PERIOD_S = 10.0
 # Audio timeout and delivery checks: each executor wake-up costs ~0.5 ms, so not more often.
 HOUSEKEEPING_PERIOD_S = 0.5
+STOP_VOICE_CHUNK_S = 0.25  # "Stopping." goes out in chunks this long (the player's usual diet)
+
+
+def _to_time(ns: int) -> Time:
+    return Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S)
 
 
 def _to_ns(stamp: Time) -> int:
@@ -91,6 +107,7 @@ class SileroVadNode(Node):
         self.wake_rejections = 0
         self._collector = UtteranceCollector()
         self._wake_worker = self._start_spoken_wake()
+        self._safety = self._start_safety_stop()
         self.create_timer(HOUSEKEEPING_PERIOD_S, self._housekeeping)
         self._publish_state()
         self.get_logger().info(
@@ -120,6 +137,114 @@ class SileroVadNode(Node):
         self._wake_guard = self.create_guard_condition(self._on_wake_results)
         self.get_logger().info(f"spoken wake on: {list(recognizer.phrases)} heard while asleep wake it")
         return WakeWorker(recognizer.recognize, self._wake_result, self._wake_result)
+
+    def _start_safety_stop(self) -> SpotterWorker | None:
+        """The stop spotter and its publishers; a bad stop_* parameter raises here (at start)."""
+        config = self.config.stop_config
+        self.safety_stops = 0
+        self.safety_rejected_blocks = 0
+        self._stops_heard: deque[Detection | Exception] = deque()
+        if not config.enabled:
+            self.get_logger().warning("safety stop OFF (stop_spotter: false): a spoken 'stop' is not heard")
+            return None
+        cancel = self.config.echo_gate and config.cancel_echo
+        spotter = StopSpotter(config, cancel_echo=cancel)
+        self._stop_voice = self._synthesize_stop_voice(config.reply_text)
+        self.cmd_pub = self.create_publisher(String, "response_cmd", RELIABLE)
+        self.interruption_pub = self.create_publisher(Interruption, "interruption_signal", RELIABLE)
+        self.safety_pub = self.create_publisher(String, "safety_stop", RELIABLE)
+        self.stop_voice_pub = self.create_publisher(AudioChunk, "response_voice", RELIABLE)
+        # The robot's voice as played: the spotter rejects a stop the robot said itself.
+        self.create_subscription(AudioChunk, "audio_played", self._on_played, AUDIO_IN)
+        self._stop_guard = self.create_guard_condition(self._on_stops_heard)
+        self.get_logger().info(
+            f"safety stop on: {list(config.stop_phrases)} ({config.language}) heard in every state, "
+            f"mic {'echo-cancelled with audio_played' if cancel else 'as received'}, "
+            f"reply {config.reply_text!r}"
+        )
+        return SpotterWorker(spotter, self._stop_heard, self._stop_heard)
+
+    def _synthesize_stop_voice(self, text: str) -> tuple[bytes, int] | None:
+        if not text:
+            return None
+        try:
+            return Speaker(SpeakerConfig()).say(text)
+        except (SpeechError, ValueError) as error:  # the stop still routes; only the voice is missing
+            self.get_logger().error(f"safety stop: cannot synthesize {text!r} ({error}): it stops silently")
+            return None
+
+    def _stop_heard(self, result: Detection | Exception) -> None:
+        """Spotter thread: hand the stop to the executor."""
+        with self._results_lock:
+            self._stops_heard.append(result)
+        self._stop_guard.trigger()
+
+    def _on_stops_heard(self) -> None:
+        with self._results_lock:
+            results = list(self._stops_heard)
+            self._stops_heard.clear()
+        for result in results:
+            if isinstance(result, Exception):
+                errors = self._safety.errors if self._safety else 0
+                self.get_logger().error(f"safety stop: spotter failed ({errors} so far): {result!r}")
+            else:
+                self._safety_stop(result)
+
+    def _safety_stop(self, detection: Detection) -> None:
+        """One hop, no LLM: stop the robot, cut the reply, tell the agents, say so."""
+        now = int(self.get_clock().now().nanoseconds)
+        self.safety_stops += 1
+        cut = Interruption(stream_id="", reason="safety_stop")  # every reply begun until now
+        cut.header.stamp = _to_time(now)
+        # Each on its own: one publish failing (RCLError under overload) must not keep the others.
+        self._publish_safely(lambda: self.cmd_pub.publish(String(data="stop")))  # first: the motion
+        self._publish_safely(lambda: self.interruption_pub.publish(cut))
+        self._publish_safely(lambda: self.safety_pub.publish(String(data=detection.text)))
+        self._publish_safely(lambda: self._say_stopping(now + 1_000_000))  # after the cut: kept
+        self.get_logger().warning(
+            f"SAFETY STOP #{self.safety_stops}: heard {detection.text!r}, "
+            f"{(now - detection.voice_end_ns) / 1e6:.0f} ms after the word ended; `stop` routed, replies cut"
+        )
+
+    def _publish_safely(self, publish: Callable[[], None]) -> None:
+        try:
+            publish()
+        except Exception as error:  # rclpy raises RCLError under overload: count, never crash
+            self.publish_failures += 1
+            self.get_logger().error(f"safety stop publish failed ({self.publish_failures} so far): {error}")
+
+    def _say_stopping(self, stamp_ns: int) -> None:
+        if self._stop_voice is None:
+            return
+        pcm_bytes, rate = self._stop_voice
+        pcm = np.frombuffer(pcm_bytes, dtype=np.int16)
+        stream_id = f"safety-stop-{self.safety_stops}"
+        step = int(STOP_VOICE_CHUNK_S * rate)
+        offsets = list(range(0, len(pcm), step)) or [0]
+        for index, offset in enumerate(offsets):
+            stamp = _to_time(stamp_ns + offset * NS_PER_S // rate)  # each chunk's first sample
+            chunk = make_audio_chunk(pcm[offset : offset + step], rate, 1, stamp, stream_id)
+            chunk.end_of_stream = index == len(offsets) - 1
+            self.stop_voice_pub.publish(chunk)
+
+    def _on_played(self, msg: AudioChunk) -> None:
+        if self._safety is None:
+            return
+        stamp = _to_ns(msg.header.stamp)
+        if len(msg.data) == 0 or stamp == 0:  # an end marker, or nothing to place in time
+            return
+        self._safety.reference(pcm_of(msg), int(msg.sample_rate), int(msg.channels), stamp)
+
+    def _spot(self, msg: AudioChunk) -> None:
+        """Every block, in every state, goes to the stop spotter first."""
+        if self._safety is None:
+            return
+        stamp = _to_ns(msg.header.stamp) or int(self.get_clock().now().nanoseconds)
+        rate, channels = int(msg.sample_rate), int(msg.channels)
+        if not 8000 <= rate <= 192_000 or not 1 <= channels <= 8 or len(msg.data) % channels:
+            self.safety_rejected_blocks += 1  # the detector reports it too, when it runs
+            return
+        self._safety.mic(pcm_of(msg), rate, channels, stamp)
 
     def _wake_result(self, epoch: int, result: WakeResult | Exception) -> None:
         """Worker thread: hand the result to the executor (attention is only touched there)."""
@@ -165,6 +290,7 @@ class SileroVadNode(Node):
 
     def _on_audio(self, msg: AudioChunk) -> None:
         self._last_audio = time.monotonic()
+        self._spot(msg)  # before the gate, sleep and mute: safety hears everything
         if self._gated(msg):
             self.blocks_gated += 1
             if self.detector.streaming:  # a held utterance reached the end of its hold
@@ -337,6 +463,7 @@ class SileroVadNode(Node):
             self.unheard_utterances,
             self._wake_worker.decoded if self._wake_worker else 0,
             self._wake_worker.errors if self._wake_worker else 0,
+            self._safety.blocks if self._safety else 0,
         )
         if current != self._reported:
             self._reported = current
@@ -345,7 +472,19 @@ class SileroVadNode(Node):
                 f"gated_blocks={current[3]} rejected_blocks={current[4]} publish_failures={current[5]} "
                 f"stream_restarts={current[6]} unheard_utterances={current[7]} "
                 f"resampled_blocks={self.detector.resampled_blocks}{self._spoken_wake_stats()}"
+                f"{self._safety_stats()}"
             )
+
+    def _safety_stats(self) -> str:
+        worker = self._safety
+        if worker is None:
+            return " safety_stop: OFF"
+        spotter = worker.spotter
+        return (
+            f" safety_stop: stops={self.safety_stops} heard={spotter.heard} own_voice={spotter.own_voice}"
+            f" repeated={spotter.repeated} dropped={worker.dropped} errors={worker.errors}"
+            f" rejected_blocks={self.safety_rejected_blocks}"
+        )
 
     def _spoken_wake_stats(self) -> str:
         worker = self._wake_worker
@@ -369,6 +508,8 @@ class SileroVadNode(Node):
         self.before_shutdown()  # when destroyed without run_node (tests, benchmarks)
         if self._wake_worker is not None:
             self._wake_worker.close()
+        if self._safety is not None:
+            self._safety.close()
         super().destroy_node()
 
 

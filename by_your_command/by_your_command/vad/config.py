@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from by_your_command.safety.config import DEFAULT_STOP_PHRASES, StopConfig
 from by_your_command.vad.attention import PhraseMatcher
 
 DEFAULT_WAKE_PHRASES = ["wake up", "wakeup", "awaken", "wake"]
@@ -93,8 +94,56 @@ class VadConfig:
             "to its end, for at most this long after the assistant started (0: it ends there)"
         },
     )
+    # The safety stop (by_your_command.safety): its defaults live in StopConfig, not here.
+    stop_spotter: bool = field(
+        default=StopConfig.enabled,
+        metadata={
+            "help": "spot stop phrases on the robot in every state (while it speaks, asleep, muted) and "
+            "route `stop` without any LLM. Off only where nothing moves"
+        },
+    )
+    stop_language: str = field(default=StopConfig.language, metadata={"help": "language of the stop phrases"})
+    stop_phrases: list[str] = field(
+        default_factory=lambda: list(DEFAULT_STOP_PHRASES[StopConfig.language]),
+        metadata={"help": "stop phrases (lower-case words); empty = stop_language's defaults"},
+    )
+    stop_reply_text: str = field(
+        default=StopConfig.reply_text, metadata={"help": "said when a stop is heard ('' = silent)"}
+    )
+    stop_refractory_ms: int = field(
+        default=StopConfig.refractory_ms,
+        metadata={"help": "a stop heard this soon after the last one is not acted on again"},
+    )
+    stop_min_level_dbfs: float = field(
+        default=StopConfig.min_level_dbfs,
+        metadata={"help": "quieter audio is never decoded (an idle room costs nothing)"},
+    )
+    stop_onset_db: float = field(
+        default=StopConfig.onset_db, metadata={"help": "speech starts this far above the noise floor"}
+    )
+    stop_end_silence_ms: int = field(
+        default=StopConfig.end_silence_ms,
+        metadata={"help": "quiet that ends an utterance (most of the latency)"},
+    )
+    stop_max_utterance_ms: int = field(
+        default=StopConfig.max_utterance_ms,
+        metadata={"help": "longer speech is a sentence, not a stop, and is not decoded"},
+    )
+    stop_max_other_words: int = field(
+        default=StopConfig.max_other_words,
+        metadata={"help": "other words a stop utterance may hold (recognition slips); never a negation"},
+    )
+    stop_own_voice_window_ms: int = field(
+        default=StopConfig.own_voice_window_ms,
+        metadata={"help": "a stop within this of the robot's own stop-like word (audio_played) is its echo"},
+    )
+    stop_cancel_echo: bool = field(
+        default=StopConfig.cancel_echo,
+        metadata={"help": "echo_gate: the spotter hears the mic with the robot's voice cancelled (AEC3)"},
+    )
 
     def __post_init__(self) -> None:
+        self.stop_config  # noqa: B018  raises ValueError on a bad stop_* parameter
         if not 0.0 < self.threshold < 1.0:
             raise ValueError(f"threshold must be in (0, 1), got {self.threshold}")
         if self.neg_threshold >= self.threshold:
@@ -122,6 +171,23 @@ class VadConfig:
         PhraseMatcher(self.wake_phrases, self.sleep_phrases, self.robot_name)  # raises on a bad phrase
         if self.sample_rate != 16000:
             raise ValueError(f"Silero runs at 16000 Hz here, got sample_rate={self.sample_rate}")
+
+    @property
+    def stop_config(self) -> StopConfig:
+        return StopConfig(
+            enabled=self.stop_spotter,
+            language=self.stop_language,
+            phrases=tuple(self.stop_phrases),
+            reply_text=self.stop_reply_text,
+            refractory_ms=self.stop_refractory_ms,
+            min_level_dbfs=self.stop_min_level_dbfs,
+            onset_db=self.stop_onset_db,
+            end_silence_ms=self.stop_end_silence_ms,
+            max_utterance_ms=self.stop_max_utterance_ms,
+            max_other_words=self.stop_max_other_words,
+            own_voice_window_ms=self.stop_own_voice_window_ms,
+            cancel_echo=self.stop_cancel_echo,
+        )
 
     @property
     def gap_tolerance_ns(self) -> int:

@@ -1,0 +1,390 @@
+"""Safety stop: detection, latency and false stops of the stop spotter (by_your_command.safety).
+
+Everything is synthetic and offline: espeak-ng voices, a synthetic room (test/audio_io), the
+spotter as the VAD node runs it (StopSpotter, one block at a time, mic and played reference
+interleaved in time order). Scenarios:
+
+  over_reply  the user says a stop phrase while the robot speaks (its echo -20 dBFS RMS at the mic,
+              the user -26 dBFS: a robot near its mic is louder there than a user a metre away)
+              gate: the raw mic, cancelled in the spotter (AEC3 on audio_played); aec: the mic after
+              the echo_suppressor's AEC3 (what `audio_filtered` carries)
+              baseline: gate with the spotter's echo cancellation off (the raw mic)
+  quiet       a stop in a quiet room (asleep / muted: the spotter is fed the same in every state)
+  own_reply   the robot's own replies saying stop / stopping / halt, played into the mic: false stops
+  chat        the user's chat with stop-like words ("don't stop believing"): false stops
+
+Each mode is one robot listening for a while: the spotter (and in aec mode the echo_suppressor's
+controller) is kept across trials on one timeline, so AEC3 and its echo guard have converged on
+earlier replies, as on a robot that has been talking; each trial ends with 1.5 s of quiet.
+Latency here = end of the word -> the spotter's decision on a real-time stream: the audio the
+decision waited for (the end silence, 32 ms blocks, the suppressor's reference wait) plus the
+compute of the block that decided. The ROS hop after it (guard condition, publish) is not in it.
+Voices: `TUNED` were looked at while choosing the parameters; `HELD_OUT` never were.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "by_your_command" / "test"))
+
+from audio_io.synthetic_room import Room, at_level, trim_silence  # type: ignore[import-not-found]  # noqa: E402
+
+from by_your_command.audio.echo import EchoConfig, EchoController  # noqa: E402
+from by_your_command.audio.pcm import Int16Array, float_to_int16, read_wav, resample, to_mono  # noqa: E402
+from by_your_command.safety.config import StopConfig  # noqa: E402
+from by_your_command.safety.spotter import StopSpotter  # noqa: E402
+
+RATE = 16000
+BLOCK = 512
+NS = 1_000_000_000
+T0 = 1_700_000_000 * NS
+TUNED = ["en-us", "en-gb", "en-us+f3", "en+m3", "en-gb-x-rp", "en-us+f2", "en-029", "en-gb-scotland"]
+HELD_OUT = ["en-us-nyc", "en-gb-x-gbclan", "en+f4", "en-gb-x-gbcwmd", "en-us+m6"]
+ROBOT_VOICES = ["en-gb", "en-us+m3", "en-us+f1", "en-gb-x-rp+f2"]
+STOPS = ["stop", "stop it", "halt", "freeze", "stop stop"]
+CHAT = [
+    "don't stop believing",
+    "the bus stop is over there",
+    "where is my stopwatch",
+    "I could not stop laughing",
+    "we will stop by later",
+    "stopping by the shop",
+    "please don't stop the music",
+    "the train will halt at the next station",
+    "put it in the freezer",
+    "a nonstop flight to Boston",
+]
+REPLY_TEMPLATES = [
+    "Okay, I will stop here.",
+    "Stopping.",
+    "Stop. I heard you.",
+    "I am stopping the arm now.",
+    "The bus stop is two blocks away.",
+    "Halt! Who goes there?",
+    "I stopped at the door, as you asked.",
+    "Let me stop and think about that for a moment.",
+    "If you say stop, I stop moving.",
+    "Halting all motion.",
+    "I can stop, halt or freeze on command.",
+    "The robot came to a halt near the table.",
+]
+OVER_REPLY = "Sure. I can see a red cup on the table next to a blue book and a small green plant."
+ROOM = Room()
+LEAD = int(0.5 * RATE)  # quiet before each trial's reply
+ECHO_DBFS = -20.0  # the robot's voice at the mic, RMS while it speaks
+USER_DBFS = -26.0  # the user a metre away: quieter there than the robot's own speaker
+USER_ROOM = Room(delay_ms=5, gain=0.8, reverb_gain=0.2)
+
+
+def speak(text: str, voice: str, wpm: int) -> Int16Array:
+    binary = shutil.which("espeak-ng")
+    if binary is None:
+        raise SystemExit("espeak-ng is missing: run scripts/bootstrap.sh")
+    with tempfile.TemporaryDirectory() as tmp:
+        wav = Path(tmp) / "s.wav"
+        subprocess.run(
+            [binary, "-v", voice, "-s", str(wpm), "-w", str(wav), text], check=True, capture_output=True
+        )
+        pcm, rate, channels = read_wav(wav)
+    speech: Int16Array = trim_silence(resample(to_mono(pcm, channels), rate, RATE), RATE)
+    return speech
+
+
+def place(total: int, pcm: Int16Array, at: int) -> npt.NDArray[np.float64]:
+    out = np.zeros(total)
+    part = pcm[: max(0, total - at)].astype(np.float64)
+    out[at : at + len(part)] = part
+    return out
+
+
+def _rms_db(x: npt.NDArray[np.float64]) -> float:
+    return 10 * math.log10(float(np.mean(np.square(x / 32768.0))) + 1e-12)
+
+
+@dataclass(frozen=True)
+class Found:
+    voice_end_ns: int
+    latency_s: float
+
+
+def compose(
+    user: Int16Array | None, reply: Int16Array | None, user_at_s: float
+) -> tuple[Int16Array, Int16Array, float]:
+    """(mic, played, user's word end s): 0.5 s lead, the reply, the user at user_at_s, 1.5 s tail."""
+    reply_s = len(reply) / RATE if reply is not None else 0.0
+    user_s = user_at_s + len(user) / RATE if user is not None else 0.0
+    total = int(RATE * (0.5 + max(reply_s, user_s) + 1.5))
+    played = np.zeros(total, dtype=np.int16)
+    mic = np.random.default_rng(total).normal(0, 10, total)  # -70 dBFS room noise
+    if reply is not None:
+        played = float_to_int16(place(total, at_level(reply, -18.0), int(0.5 * RATE)) / 32768)
+        echo = ROOM.echo(played, RATE).astype(np.float64)
+        speaking = echo[int(0.5 * RATE) : int((0.5 + reply_s) * RATE)]
+        mic += echo * 10 ** ((ECHO_DBFS - _rms_db(speaking)) / 20)
+    if user is not None:
+        near = USER_ROOM.echo(at_level(user, USER_DBFS), RATE)
+        mic += place(total, near, int(user_at_s * RATE))
+    return float_to_int16(mic / 32768), played, user_s + USER_ROOM.delay_ms / 1000
+
+
+class Stream:
+    """One robot listening for a while, on one continuous timeline (see the docstring)."""
+
+    def __init__(self, mode: str, config: StopConfig) -> None:
+        self.mode = mode
+        self.spotter = StopSpotter(config, cancel_echo=mode == "gate")
+        self.suppressor = EchoController(EchoConfig(mode="aec")) if mode == "aec" else None
+        self.clock = T0
+        self.cpu_s = 0.0  # the spotter's compute (not the echo_suppressor's)
+        self.audio_s = 0.0
+
+    def warm_up(self, reply: Int16Array) -> None:
+        for _ in range(2):
+            self.play(None, reply)
+
+    def play(
+        self, user: Int16Array | None, reply: Int16Array | None, user_at_s: float = 2.5
+    ) -> tuple[list[Found], int]:
+        """Detections and the user's word end (ns)."""
+        mic, played, end_s = compose(user, reply, user_at_s)
+        base = self.clock
+        found = []
+        speaking = False
+        for k in range(0, len(mic) - BLOCK + 1, BLOCK):
+            stamp = base + k * NS // RATE
+            reference = played[k : k + BLOCK]
+            # The player publishes every block of a reply, its pauses too.
+            playing = reply is not None and LEAD <= k < LEAD + len(reply)
+            cpu = time.process_time()
+            if playing:
+                self.spotter.reference(reference, RATE, 1, stamp)
+            self.cpu_s += time.process_time() - cpu
+            began = time.perf_counter()
+            blocks = [(mic[k : k + BLOCK], stamp)]
+            if self.suppressor is not None:  # the echo_suppressor node, in front of the VAD
+                if playing != speaking:
+                    speaking = playing
+                    self.suppressor.set_assistant_speaking(playing, stamp)
+                if playing:
+                    self.suppressor.add_reference(reference, RATE, 1, stamp)
+                out = self.suppressor.process(mic[k : k + BLOCK], stamp, stamp)
+                blocks = [(b.pcm, b.start_ns) for b in out]
+            detections = []
+            cpu = time.process_time()
+            for pcm, start in blocks:
+                detections += self.spotter.mic(pcm, RATE, 1, start)
+            self.cpu_s += time.process_time() - cpu
+            spent = time.perf_counter() - began
+            block_end = stamp + BLOCK * NS // RATE
+            found += [Found(d.voice_end_ns, (block_end - d.voice_end_ns) / NS + spent) for d in detections]
+        self.audio_s += len(mic) / RATE
+        self.clock = base + len(mic) * NS // RATE  # continuous: the trial ends with 1.5 s of quiet
+        return found, base + int(end_s * NS)
+
+
+def pct(a: int, b: int) -> str:
+    return f"{100 * a / max(b, 1):5.1f} % ({a}/{b})"
+
+
+def p95(xs: list[float]) -> str:
+    if not xs:
+        return "n/a"
+    return f"median {np.median(xs) * 1000:.0f} ms, p95 {np.percentile(xs, 95) * 1000:.0f} ms"
+
+
+def node_path(trials: int) -> list[float]:
+    """End of the word -> `stop` on response_cmd through the real silero_vad_node (a process, gate
+    mode), the audio published in real time and stamped with the wall clock like audio_capture."""
+    import os
+    import threading
+    import uuid
+
+    import rclpy
+    from builtin_interfaces.msg import Time
+    from by_your_command_msgs.msg import AudioChunk
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
+    from by_your_command.nodes._audio_msgs import make_audio_chunk
+    from by_your_command.nodes._qos import RELIABLE, STREAM
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    namespace = f"/bench_{uuid.uuid4().hex[:8]}"
+    args = [
+        sys.executable,
+        "-m",
+        "by_your_command.nodes.silero_vad_node",
+        "--ros-args",
+        "-r",
+        f"__ns:={namespace}",
+    ]
+    args += ["-p", "input_topic:=audio", "-p", "echo_gate:=true"]
+    vad = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = Node("bench_safety_stop", namespace=namespace, context=context)
+    mic = node.create_publisher(AudioChunk, "audio", STREAM)
+    arrivals: list[int] = []
+    lock = threading.Lock()
+
+    def on_command(msg: String) -> None:
+        if msg.data == "stop":
+            with lock:
+                arrivals.append(time.time_ns())
+
+    node.create_subscription(String, "response_cmd", on_command, RELIABLE)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    threading.Thread(target=executor.spin, daemon=True).start()
+    latencies = []
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (
+            mic.get_subscription_count() and node.count_publishers(f"{namespace}/response_cmd")
+        ):
+            time.sleep(0.05)  # discovery, polled
+        quiet = np.zeros(int(1.2 * RATE), dtype=np.int16)
+        for index in range(trials):
+            phrase = STOPS[index % len(STOPS)]
+            user = USER_ROOM.echo(at_level(speak(phrase, TUNED[index % len(TUNED)], 165), USER_DBFS), RATE)
+            audio = np.concatenate([quiet, user, quiet])
+            noise = np.random.default_rng(index).normal(0, 10, len(audio))
+            audio = float_to_int16((audio + noise) / 32768)
+            start_ns = time.time_ns()
+            word_end = start_ns + (len(quiet) + len(user)) * NS // RATE
+            with lock:
+                seen = len(arrivals)
+            for k in range(0, len(audio) - BLOCK + 1, BLOCK):
+                due = start_ns + (k + BLOCK) * NS // RATE  # a block goes out when its last sample is in
+                time.sleep(max(0.0, (due - time.time_ns()) / NS))  # real-time pacing of the capture
+                stamp = start_ns + k * NS // RATE
+                mic.publish(
+                    make_audio_chunk(audio[k : k + BLOCK], RATE, 1, Time(sec=stamp // NS, nanosec=stamp % NS))
+                )
+            time.sleep(1.0)  # the refractory window between trials
+            with lock:
+                if len(arrivals) > seen:
+                    latencies.append((arrivals[seen] - word_end) / NS)
+    finally:
+        vad.terminate()
+        try:
+            vad.wait(5)
+        except subprocess.TimeoutExpired:
+            vad.kill()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return latencies
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--replies", type=int, default=200, help="own replies played into the mic")
+    parser.add_argument("--quick", action="store_true", help="fewer voices and replies (a smoke run)")
+    parser.add_argument("--modes", default="gate,aec,gate_raw,quiet", help="detection scenarios to run")
+    parser.add_argument("--node-trials", type=int, default=20, help="stops through the real node (0: none)")
+    args = parser.parse_args()
+    config = StopConfig()
+    rates = [150, 185]
+    sets = {"tuned": TUNED, "held_out": HELD_OUT}
+    if args.quick:
+        sets = {"tuned": TUNED[:2], "held_out": HELD_OUT[:2]}
+        args.replies = min(args.replies, 24)
+    began = time.perf_counter()
+
+    probe = StopSpotter(config, cancel_echo=False)._mic_recognizer
+    decode_times = []
+    for phrase in STOPS:
+        pcm = speak(phrase, "en-us", 160)
+        t = time.perf_counter()
+        probe.start()
+        probe.feed(pcm)
+        probe.finish()
+        decode_times.append(time.perf_counter() - t)
+    print(f"baseline: decoding a whole stop phrase after it ended (not streamed): {p95(decode_times)}")
+
+    if args.node_trials:
+        node = node_path(args.node_trials)
+        print(
+            f"node path (silero_vad_node process, gate mode, quiet room): end of word -> `stop` on "
+            f"response_cmd: {p95(node)}, {len(node)}/{args.node_trials} heard",
+            flush=True,
+        )
+
+    warm = speak(REPLY_TEMPLATES[7] + " " + OVER_REPLY, ROBOT_VOICES[0], 170)
+    for set_name, voices in sets.items():
+        for mode in [m for m in args.modes.split(",") if m]:
+            stream = Stream(mode, config)
+            if mode != "quiet":
+                stream.warm_up(warm)
+            hits = total = 0
+            latencies: list[float] = []
+            for v_index, voice in enumerate(voices):
+                for rate in rates:
+                    for p_index, phrase in enumerate(STOPS):
+                        robot = ROBOT_VOICES[(v_index + p_index) % len(ROBOT_VOICES)]
+                        reply = None if mode == "quiet" else speak(OVER_REPLY, robot, 170)
+                        at = 1.5 + (p_index + rate) % 3  # 1.5, 2.5 or 3.5 s into a ~5 s reply
+                        found, word_end = stream.play(speak(phrase, voice, rate), reply, at)
+                        good = [f for f in found if abs(f.voice_end_ns - word_end) < 0.4 * NS]
+                        total += 1
+                        if good:
+                            hits += 1
+                            latencies.append(good[0].latency_s)
+            spotter = stream.spotter
+            print(
+                f"{set_name:8s} {mode:9s} detected {pct(hits, total)}, end of word -> decision: "
+                f"{p95(latencies)} (own_voice rejections {spotter.own_voice}, repeated {spotter.repeated}; "
+                f"spotter CPU {100 * stream.cpu_s / stream.audio_s:.1f} % of a core)",
+                flush=True,
+            )
+
+    streams = {mode: Stream(mode, config) for mode in ("gate", "aec")}
+    for stream in streams.values():
+        stream.warm_up(warm)
+    false_stops = dict.fromkeys(streams, 0)
+    for index in range(args.replies):
+        template = REPLY_TEMPLATES[index % len(REPLY_TEMPLATES)]
+        voice = ROBOT_VOICES[(index // len(REPLY_TEMPLATES)) % len(ROBOT_VOICES)]
+        reply = speak(template, voice, [150, 170, 190][index % 3])
+        for mode, stream in streams.items():
+            found, _ = stream.play(None, reply)
+            false_stops[mode] += len(found)
+    for mode, count in false_stops.items():
+        spotter = streams[mode].spotter
+        print(
+            f"own replies {mode:4s}: false stops {pct(count, args.replies)} "
+            f"(rejected as own voice {spotter.own_voice}, repeated {spotter.repeated})",
+            flush=True,
+        )
+
+    chat = Stream("quiet", config)
+    chat_false = chat_total = 0
+    for voice in TUNED + HELD_OUT:
+        for text in CHAT:
+            found, _ = chat.play(speak(text, voice, 165), None, 0.5)
+            chat_false += bool(found)
+            chat_total += 1
+    print(f"chat with stop-like words: false stops {pct(chat_false, chat_total)}")
+    print(f"bench time {time.perf_counter() - began:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,236 @@
+"""The stop spotter: microphone blocks in, stops out. Pure and single-threaded (see worker.py).
+
+Mic audio is cut into short utterances by level (segmenter.py) and each one is decoded as it
+comes (recognizer.py: a small language model, with a keyphrase search as second opinion); at its
+end the transcript is judged. In echo_gate mode the raw mic holds the robot's voice at full
+level, louder than a user a metre away: while the robot plays (and a second after), the mic goes
+through WebRTC AEC3 and its echo guard (audio/echo.py, as the echo_suppressor runs them) with the
+played audio as reference, and only then is it segmented (`cancel_echo`). Idle, only the level
+of each 20 ms frame is computed. The reference itself is spotted too (own_voice.py):
+a stop heard where the robot said a stop-like word is its own voice, and is rejected.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from by_your_command.audio.pcm import Int16Array, resample, to_mono
+from by_your_command.safety.config import StopConfig
+from by_your_command.safety.own_voice import OwnVoiceMarks
+from by_your_command.safety.recognizer import (
+    REFERENCE_PHRASE_WEIGHT,
+    Heard,
+    KeywordSpotter,
+    StopMatcher,
+    StopRecognizer,
+)
+from by_your_command.safety.segmenter import (
+    RATE,
+    Abandoned,
+    Audio,
+    LevelSegmenter,
+    SegmentEvent,
+    Started,
+)
+
+if TYPE_CHECKING:
+    from by_your_command.audio.echo import Block, EchoController
+
+log = logging.getLogger(__name__)
+
+NS_PER_S = 1_000_000_000
+KWS_THRESHOLD = 1e-20
+# While the robot speaks, a stop waits until its voice is known this far past the stop's end: a
+# stop-like word it is in the middle of ("I stopped...") is recognised only at its end. The
+# reference runs ahead of the mic (the room delays the mic), so the wait is short or nothing.
+OWN_VOICE_LOOKAHEAD_NS = 200_000_000
+OWN_VOICE_MAX_WAIT_NS = 500_000_000  # mic time: the reference stalled, decide without it
+KWS_MAX_VOICED_NS = 900_000_000  # a keyphrase hit counts only in an utterance this short: one word
+MIN_VOICED_NS = 150_000_000  # shorter is a click or a scrap of residual echo, not a stop phrase
+ECHO_TAIL_NS = NS_PER_S  # keep cancelling this long after the last reference block (room tail)
+REFERENCE_MAX_UTTERANCE_MS = 5000  # the robot's sentences: its stop-like words need their times
+
+
+@dataclass(frozen=True)
+class Detection:
+    text: str  # what was heard
+    voice_start_ns: int
+    voice_end_ns: int  # end of the last word (mic clock)
+
+
+class StopSpotter:
+    def __init__(self, config: StopConfig, cancel_echo: bool) -> None:
+        self.config = config
+        phrases = config.stop_phrases
+        self.matcher = StopMatcher(phrases, config.max_other_words)
+        self._mic_recognizer = StopRecognizer(phrases, streaming=True)
+        self._reference_recognizer = StopRecognizer(
+            phrases, streaming=True, phrase_weight=REFERENCE_PHRASE_WEIGHT
+        )
+        self._keywords = KeywordSpotter(phrases, KWS_THRESHOLD)
+
+        self._mic = LevelSegmenter(
+            config.min_level_dbfs, config.onset_db, config.end_silence_ms, config.max_utterance_ms
+        )
+        self._reference = LevelSegmenter(
+            config.min_level_dbfs, config.onset_db, config.end_silence_ms, REFERENCE_MAX_UTTERANCE_MS
+        )
+        self._reference_start = 0
+        self._end_silence_ns = config.end_silence_ms * 1_000_000
+        self.marks = OwnVoiceMarks(config.own_voice_window_ms)
+        self._echo: EchoController | None = _echo_controller() if cancel_echo else None
+        self._reference_until = 0  # end of the latest reference block (its clock = the mic's)
+        self._cancelling = False
+        self._cancelled_ns = 0  # mic time of the next sample out of the echo controller
+        self._last_stop_ns: int | None = None
+        self._pending: list[Detection] = []  # heard while the robot spoke: its voice not known yet
+        self.heard = 0  # utterances decoded
+        self.stops = 0
+        self.own_voice = 0  # stops rejected as the robot's own voice
+        self.repeated = 0  # stops within the refractory window of the last one
+        self.last_text = ""
+
+    @property
+    def cancelling(self) -> bool:
+        return self._cancelling
+
+    def reference(self, pcm: Int16Array, sample_rate: int, channels: int, start_ns: int) -> None:
+        """A block the player played, stamped with its play time."""
+        mono = to_mono(pcm, channels)
+        if self._echo is not None:
+            self._echo.add_reference(mono, sample_rate, 1, start_ns)
+        pcm16 = resample(mono, sample_rate, RATE)
+        self._reference_until = max(self._reference_until, start_ns + len(mono) * NS_PER_S // sample_rate)
+        for event in self._reference.push(pcm16, start_ns):
+            self._reference_event(event)
+
+    def _reference_event(self, event: SegmentEvent) -> None:
+        recognizer = self._reference_recognizer
+        if isinstance(event, Started):
+            self._reference_start = event.start_ns
+            recognizer.start()
+        elif isinstance(event, Audio):
+            recognizer.feed(event.pcm)
+        elif isinstance(event, Abandoned):
+            recognizer.abandon()
+        else:
+            self._mark_own_words(recognizer.finish())
+
+    def _mark_own_words(self, heard: Heard) -> None:
+        for word, start_s, end_s in heard.words:
+            if self.matcher.stop_like(word):
+                start = self._reference_start + int(start_s * NS_PER_S)
+                self.marks.mark(start, self._reference_start + int(end_s * NS_PER_S))
+
+    def mic(self, pcm: Int16Array, sample_rate: int, channels: int, start_ns: int) -> list[Detection]:
+        """A microphone block captured from `start_ns`; the stops it completes (at most one)."""
+        mono = to_mono(pcm, channels)
+        if self._reference.active and start_ns > self._reference_until + self._end_silence_ns:
+            # The player stopped publishing: its last word ends without the quiet after it.
+            for event in self._reference.close():
+                self._reference_event(event)
+        blocks = self._echo_cancelled(mono, sample_rate, start_ns)
+        found: list[Detection] = []
+        for block, stamp in blocks:
+            for event in self._mic.push(block, stamp):
+                detection = self._mic_event(event)
+                if detection is not None:
+                    self._pending.append(detection)
+            found += self._settle(stamp)
+        return found
+
+    def _settle(self, mic_ns: int) -> list[Detection]:
+        decided, waiting = [], []
+        for detection in self._pending:
+            due = detection.voice_end_ns + OWN_VOICE_LOOKAHEAD_NS
+            known = not self._reference.active or self._reference_until >= due
+            if known or mic_ns >= detection.voice_end_ns + OWN_VOICE_MAX_WAIT_NS:
+                if self._accepted(detection):
+                    decided.append(detection)
+            else:
+                waiting.append(detection)
+        self._pending = waiting
+        return decided
+
+    def _echo_cancelled(self, mono: Int16Array, rate: int, start_ns: int) -> list[tuple[Int16Array, int]]:
+        echo = self._echo
+        playing = echo is not None and start_ns < self._reference_until + ECHO_TAIL_NS
+        if echo is None or not (playing or self._cancelling):
+            return [(resample(mono, rate, RATE), start_ns)]
+        if not playing:  # the robot's voice has died away: back to the raw mic (AEC3 costs CPU)
+            self._cancelling = False
+            out = self._restamped(echo.drain())
+            echo.set_assistant_speaking(False, start_ns)
+            return [*out, (resample(mono, rate, RATE), start_ns)]
+        if not self._cancelling:
+            self._cancelling = True
+            self._cancelled_ns = start_ns
+            echo.set_assistant_speaking(True, start_ns)
+        return self._restamped(echo.process(mono, start_ns, start_ns, rate))
+
+    def _restamped(self, blocks: list[Block]) -> list[tuple[Int16Array, int]]:
+        """The controller's output runs on without the gaps between the robot's replies (it only
+        hears the mic while the robot plays): its blocks are laid from where cancelling began."""
+        out = []
+        for block in blocks:
+            out.append((block.pcm, self._cancelled_ns))
+            self._cancelled_ns += len(block.pcm) * NS_PER_S // RATE
+        return out
+
+    def _mic_event(self, event: SegmentEvent) -> Detection | None:
+        recognizer = self._mic_recognizer
+        if isinstance(event, Started):
+            recognizer.start()
+            self._keywords.start()
+        elif isinstance(event, Audio):
+            recognizer.feed(event.pcm)
+            self._keywords.feed(event.pcm)
+        elif isinstance(event, Abandoned):
+            recognizer.abandon()
+            self._keywords.finish()
+        else:
+            heard = recognizer.finish()
+            keyword = self._keywords.finish()
+            self.heard += 1
+            self.last_text = heard.text
+            voiced = event.voice_end_ns - event.voice_start_ns
+            if voiced < MIN_VOICED_NS:
+                return None
+            short = voiced <= KWS_MAX_VOICED_NS
+            if self.matcher.is_stop(heard.text) or (
+                keyword and short and self.matcher.may_be_stop(heard.text)
+            ):
+                return Detection(heard.text, event.voice_start_ns, event.voice_end_ns)
+        return None
+
+    def _accepted(self, detection: Detection) -> bool:
+        if self._reference.active:
+            # The robot is still saying its sentence: its words so far (the room delays the mic,
+            # so the reference is ahead of what was just heard).
+            self._mark_own_words(self._reference_recognizer.partial())
+        if self.marks.covers(detection.voice_start_ns, detection.voice_end_ns):
+            self.own_voice += 1
+            log.info("stop heard (%r) rejected: the robot's own voice", detection.text)
+            return False
+        last = self._last_stop_ns
+        if last is not None and detection.voice_end_ns - last < self.config.refractory_ms * 1_000_000:
+            self.repeated += 1
+            return False
+        self._last_stop_ns = detection.voice_end_ns
+        self.stops += 1
+        return True
+
+
+def _echo_controller() -> EchoController | None:
+    try:
+        from by_your_command.audio.echo import EchoConfig, EchoController
+
+        # With its echo guard, as the echo_suppressor runs it: AEC3 alone leaves the robot's voice
+        # 5-15 dB down, still one long utterance to the level segmenter; the guard mutes what is
+        # not clearly louder than that residual, so the user's stop stands out as its own utterance.
+        return EchoController(EchoConfig(mode="aec"))
+    except ImportError as error:
+        log.warning("stop spotter without echo cancellation (%s): the robot's voice may hide a stop", error)
+        return None

@@ -1,0 +1,122 @@
+"""The safety stop through the real VAD node (a process): a spoken stop in gate mode while the
+robot speaks, asleep and muted routes `stop`, cuts the replies, tells the agents and says
+"Stopping."; the robot's own stop, played into the mic with its reference, does not; a bad stop
+configuration stops the node at start."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from by_your_command_msgs.msg import AudioChunk, Interruption
+from byc_testing import running_process
+from ros_probe import Probe, probe_node
+from safety.test_spotter import said
+from std_msgs.msg import Bool, String
+from vad.test_graph import alive, node, spin_until
+
+from by_your_command.audio.pcm import Int16Array
+from by_your_command.nodes._audio_msgs import make_audio_chunk
+from by_your_command.nodes._qos import LATCHED, RELIABLE, STREAM
+
+RATE = 16000
+BLOCK = 512
+NS = 1_000_000_000
+
+
+class Room:
+    """Publishes the mic (`audio`) and, when the robot speaks, what it played (`audio_played`)
+    as stamped blocks on one continuous timeline; the mic hears the robot 120 ms late."""
+
+    def __init__(self, probe: Probe) -> None:
+        self.probe = probe
+        self.mic = probe.node.create_publisher(AudioChunk, "audio", STREAM)
+        self.played = probe.node.create_publisher(AudioChunk, "audio_played", STREAM)
+        self.next_ns = probe.node.get_clock().now().nanoseconds
+
+    def play(self, user: Int16Array | None = None, robot: Int16Array | None = None) -> None:
+        length = max(len(user) if user is not None else 0, len(robot) if robot is not None else 0)
+        mic = np.zeros(length + RATE, dtype=np.int32)
+        if user is not None:
+            mic[: len(user)] += user
+        delay = int(0.12 * RATE)
+        if robot is not None:
+            mic[delay : delay + len(robot)] += robot // 2
+        mic16 = np.clip(mic, -32768, 32767).astype(np.int16)
+        for k in range(0, len(mic16) - BLOCK + 1, BLOCK):
+            stamp = Time(sec=self.next_ns // NS, nanosec=self.next_ns % NS)
+            if robot is not None and k < len(robot):
+                self.played.publish(make_audio_chunk(robot[k : k + BLOCK], RATE, 1, stamp, "reply-1"))
+            self.mic.publish(make_audio_chunk(mic16[k : k + BLOCK], RATE, 1, stamp))
+            self.next_ns += BLOCK * NS // RATE
+            self.probe.spin(0.002)
+
+
+@pytest.mark.ros
+def test_a_spoken_stop_is_obeyed_while_the_robot_speaks_asleep_and_muted_but_not_its_own(
+    ros_namespace: str,
+) -> None:
+    # Without the spotter's echo cancellation the robot's voice reaches it whole (the worst case,
+    # e.g. before AEC3 has converged): only its reference on audio_played can reject it.
+    command = node(
+        "silero_vad_node", ros_namespace, "input_topic:=audio", "echo_gate:=true", "stop_cancel_echo:=false"
+    )
+    with probe_node(ros_namespace) as probe, running_process(command) as vad:
+        check = alive(vad)
+        states = probe.listen(String, "attention_state", LATCHED)
+        cuts = probe.listen(Interruption, "interruption_signal", RELIABLE)
+        commands = probe.listen(String, "response_cmd", RELIABLE)
+        stops = probe.listen(String, "safety_stop", RELIABLE)
+        voice = probe.listen(AudioChunk, "response_voice", RELIABLE)
+        speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
+        wake = probe.node.create_publisher(Bool, "wake_cmd", RELIABLE)
+        voice_active = probe.node.create_publisher(Bool, "voice_active", RELIABLE)
+        room = Room(probe)
+
+        def wait(condition: object, what: str) -> None:
+            spin_until(probe, check, condition, timeout=30, what=what)  # type: ignore[arg-type]
+
+        wait(
+            lambda: states and room.mic.get_subscription_count() and room.played.get_subscription_count(),
+            "the VAD node to come up",
+        )
+        speaking.publish(Bool(data=True))  # the robot is speaking: gate mode closes the VAD's input
+        wait(lambda: probe.node.count_subscribers(probe.topic("assistant_speaking")) >= 1, "the gate")
+
+        # The robot's own stop, heard back by the mic, with what it played on audio_played.
+        room.play(robot=said("stop it"))
+        room.play(robot=said("Stopping."))
+        # Then the user, during the reply: the stop is obeyed.
+        room.play(user=said("halt"))
+        wait(lambda: len(stops) == 1 and len(voice) >= 1 and voice[-1].end_of_stream, "the first stop")
+        assert [c.data for c in commands] == ["stop"]
+        assert len(cuts) == 1 and cuts[0].reason == "safety_stop" and cuts[0].stream_id == ""
+        assert cuts[0].action == Interruption.CUT
+        assert stops[0].data == "halt"
+        stamp = lambda m: m.header.stamp.sec * NS + m.header.stamp.nanosec  # noqa: E731
+        assert {c.stream_id for c in voice} == {"safety-stop-1"}
+        assert all(stamp(c) > stamp(cuts[0]) for c in voice)  # the player keeps it after the cut
+
+        speaking.publish(Bool(data=False))
+        wake.publish(Bool(data=False))
+        wait(lambda: states[-1].data == "asleep", "sleep")
+        room.play(user=said("stop it"))
+        wait(lambda: len(stops) == 2, "a stop while asleep")
+
+        wake.publish(Bool(data=True))
+        voice_active.publish(Bool(data=False))
+        wait(lambda: states[-1].data == "muted", "mute")
+        room.play(user=said("freeze"))
+        wait(lambda: len(stops) == 3, "a stop while muted")
+        assert [c.data for c in commands] == ["stop"] * 3
+        assert len({c.stream_id for c in voice}) == 3
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("param", ["stop_language:=klingon", "stop_phrases:=[stop,blorptastic]"])
+def test_a_bad_stop_configuration_stops_the_node_at_start(ros_namespace: str, param: str) -> None:
+    command = node("silero_vad_node", ros_namespace, "input_topic:=audio", param)
+    with running_process(command) as vad:
+        output, _ = vad.communicate(timeout=60)
+    assert vad.returncode != 0
+    assert "klingon" in output or "blorptastic" in output

@@ -1,0 +1,115 @@
+"""The stop spotter on speech made at test time (espeak-ng, real pocketsphinx): stops are heard,
+stop-like chat is not, the robot's own stop (present in the played reference) is rejected, and a
+bad stop configuration is refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from audio_io.synthetic_room import espeak, trim_silence
+
+from by_your_command.audio.pcm import Int16Array
+from by_your_command.safety.config import StopConfig
+from by_your_command.safety.recognizer import StopMatcher, StopRecognizer
+from by_your_command.safety.spotter import Detection, StopSpotter
+from by_your_command.vad.config import VadConfig
+
+RATE = 16000
+BLOCK = 512
+NS = 1_000_000_000
+T0 = 1_700_000_000 * NS
+
+
+def said(text: str, voice: str = "en-us") -> Int16Array:
+    quiet = np.zeros(RATE // 2, dtype=np.int16)
+    return np.concatenate([quiet, trim_silence(espeak(text, voice, RATE), RATE), quiet])
+
+
+def feed(spotter: StopSpotter, mic: Int16Array, played: Int16Array | None = None) -> list[Detection]:
+    found = []
+    for k in range(0, len(mic) - BLOCK + 1, BLOCK):
+        stamp = T0 + k * NS // RATE
+        if played is not None:
+            spotter.reference(played[k : k + BLOCK], RATE, 1, stamp)
+        found += spotter.mic(mic[k : k + BLOCK], RATE, 1, stamp)
+    return found
+
+
+@pytest.fixture(scope="module")
+def spotter_config() -> StopConfig:
+    return StopConfig()
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("text", ["stop it", "halt", "freeze", "stop stop"])
+def test_a_stop_phrase_on_its_own_is_heard(spotter_config: StopConfig, text: str) -> None:
+    found = feed(StopSpotter(spotter_config, cancel_echo=False), said(text))
+    assert len(found) == 1, found
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("text", ["don't stop believing", "where is my stopwatch", "put it in the freezer"])
+def test_stop_like_chat_is_not_a_stop(spotter_config: StopConfig, text: str) -> None:
+    assert feed(StopSpotter(spotter_config, cancel_echo=False), said(text)) == []
+
+
+@pytest.mark.unit
+def test_the_robots_own_stop_in_the_reference_is_rejected(spotter_config: StopConfig) -> None:
+    played = said("stop it")
+    delay = int(0.12 * RATE)  # the robot heard back through the room, 120 ms later
+    mic = np.concatenate([np.zeros(delay, dtype=np.int16), played[:-delay] // 2])
+    spotter = StopSpotter(spotter_config, cancel_echo=False)
+    assert feed(spotter, mic, played) == []
+    assert spotter.own_voice == 1
+    # Without its reference the same audio is a stop: the rejection is the reference's doing.
+    assert len(feed(StopSpotter(spotter_config, cancel_echo=False), mic)) == 1
+
+
+@pytest.mark.unit
+def test_a_second_stop_within_the_refractory_window_is_not_repeated(spotter_config: StopConfig) -> None:
+    spotter = StopSpotter(spotter_config, cancel_echo=False)
+    halt = trim_silence(espeak("halt", "en-us", RATE), RATE)
+    pause = np.zeros(int(0.4 * RATE), dtype=np.int16)
+    quick = np.concatenate([pause, halt, pause, halt, pause, pause])
+    assert len(feed(spotter, quick)) == 1
+    assert spotter.repeated == 1
+
+
+@pytest.mark.unit
+def test_matcher_leans_to_detect_but_never_on_a_negation() -> None:
+    matcher = StopMatcher(["stop", "halt", "stop it"], max_other_words=1)
+    assert matcher.is_stop("stop") and matcher.is_stop("okay stop") and matcher.is_stop("stop now please")
+    assert matcher.is_stop("stop open")  # one slip of the recogniser still stops
+    assert not matcher.is_stop("don't stop") and not matcher.is_stop("can't stop")
+    assert not matcher.is_stop("the bus stop") and not matcher.is_stop("stopping")
+    assert matcher.stop_like("stopping") and matcher.stop_like("halted") and not matcher.stop_like("it")
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"stop_language": "klingon"}, "known languages: ['en']"),
+        ({"stop_phrases": ["Stop!"]}, "is not a phrase"),
+        ({"stop_phrases": ["stop", ""]}, "is not a phrase"),
+        ({"stop_refractory_ms": -1}, "stop_refractory_ms"),
+        ({"stop_end_silence_ms": 5}, "stop_end_silence_ms"),
+    ],
+)
+def test_a_bad_stop_configuration_is_refused(params: dict[str, object], message: str) -> None:
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        VadConfig(**params)  # type: ignore[arg-type]
+
+
+@pytest.mark.unit
+def test_a_phrase_the_dictionary_lacks_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"\['blorptastic'\] not in the pronouncing dictionary"):
+        StopRecognizer(["stop", "blorptastic"])
+
+
+@pytest.mark.unit
+def test_a_partial_result_before_the_first_word_is_empty() -> None:
+    recognizer = StopRecognizer(["stop"], streaming=True)
+    recognizer.start()
+    recognizer.feed(np.zeros(RATE // 10, dtype=np.int16))
+    assert recognizer.partial().words == ()
