@@ -224,6 +224,7 @@ class _Stream:
         # Pieces put back at the front of the queue while one of its blocks was handed out and not
         # yet in the sink: that block, if given back, goes after them (it comes later in the reply).
         self.requeued_ahead = 0
+        self.end_reported = False  # a status saying it finished was handed out
 
     def take(self, count: int) -> Int16Array:
         parts: list[Int16Array] = []
@@ -387,7 +388,10 @@ class PlaybackEngine:
         with self._lock:
             done = [s for s in self._retired if s.cut_at_ns is not None or now_ns >= s.play_end_ns]
             self._retired = [s for s in self._retired if s not in done]
-            return tuple(self._state(s, now_ns) for s in done if s.cut_at_ns is None)
+            unreported = [s for s in done if s.cut_at_ns is None and not s.end_reported]
+            for stream in unreported:
+                stream.end_reported = True
+            return tuple(self._state(s, now_ns) for s in unreported)
 
     def wants(self, block: PlayBlock) -> bool:
         """False if the handed-out block's reply was cut (then `give_back` drops it), paused, or
@@ -613,7 +617,10 @@ class PlaybackEngine:
         with self._lock:
             if self._current is None:
                 return PlaybackState("", 0, 0, self._speaking(now_ns), False, False, False)
-            return self._state(self._current, now_ns)
+            state = self._state(self._current, now_ns)
+            if state.finished:
+                self._current.end_reported = True
+            return state
 
 
 ErrorHandler = Callable[[BaseException], None]

@@ -304,6 +304,13 @@ def test_a_reply_followed_at_once_by_the_next_still_reports_its_end() -> None:
     [retired] = eng.take_retired(end)
     assert (retired.stream_id, retired.finished, retired.played_ms) == ("a", True, 40)
     assert eng.take_retired(end) == ()  # once
+    # one whose end was reported while it was the current reply is not reported again
+    eng.enqueue(chunk("c", tone(0.04, RATE), end_of_stream=True), end)
+    _, later = play_blocks(eng, end + 100 * MS)
+    assert eng.status(later).finished  # "c" reported finished...
+    eng.enqueue(chunk("d", tone(0.04, RATE), end_of_stream=True), later)
+    play_blocks(eng, later + 100 * MS)
+    assert eng.take_retired(later + 1000 * MS) == ()  # ...and "b" was, when it was the current one
 
 
 @pytest.mark.unit
