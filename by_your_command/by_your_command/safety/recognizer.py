@@ -16,7 +16,6 @@ worse than a spurious one.
 
 from __future__ import annotations
 
-import io
 import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -26,7 +25,12 @@ import numpy as np
 
 from by_your_command.audio.pcm import Int16Array
 from by_your_command.vad.attention import FILLER_WORDS, NEGATIONS, words_of
-from by_your_command.vad.spoken_wake import GARBAGE_WORDS, RecognizerUnavailableError, _pronunciations
+from by_your_command.vad.spoken_wake import (
+    GARBAGE_WORDS,
+    _pronunciations,
+    pronunciations,
+    small_lm_decoder,
+)
 
 SAMPLE_RATE = 16000
 PHRASE_WEIGHT = 20  # how many times each stop phrase appears in the LM text (its prior)
@@ -120,15 +124,8 @@ class StopRecognizer:
     def __init__(
         self, phrases: Iterable[str], streaming: bool = False, phrase_weight: int = PHRASE_WEIGHT
     ) -> None:
-        try:
-            from pocketsphinx import Config, Decoder
-            from pocketsphinx.lm import ArpaBoLM  # type: ignore[import-untyped]
-        except ImportError as error:
-            raise RecognizerUnavailableError(
-                f"pocketsphinx is not installed ({error}); `pip install pocketsphinx==5.1.1`"
-            ) from error
         phrases = [" ".join(words_of(p)) for p in phrases]
-        dictionary = _pronunciations(Path(Config()["dict"]))
+        dictionary = pronunciations()  # RecognizerUnavailableError without pocketsphinx
         unknown = sorted({w for p in phrases for w in p.split() if w not in dictionary})
         if unknown:
             raise ValueError(
@@ -139,16 +136,7 @@ class StopRecognizer:
             {w for w in [*GARBAGE_WORDS, *NEAR_MISSES] if w in dictionary} - set(phrases) - CONFUSABLE
         )
         text = "\n".join(vocabulary + [p for p in phrases for _ in range(phrase_weight)]) + "\n"
-        model = ArpaBoLM(text=text, add_start=True, case="lower")
-        model.compute()
-        arpa = io.StringIO()
-        model.write(arpa)
-        with tempfile.TemporaryDirectory(prefix="byc_stop_") as tmp:
-            lm, words = Path(tmp) / "stop.arpa", Path(tmp) / "stop.dict"
-            lm.write_text(arpa.getvalue(), encoding="utf-8")
-            spoken = sorted(set(text.split()))
-            words.write_text("".join(f"{e}\n" for w in spoken for e in dictionary[w]), encoding="utf-8")
-            self._decoder = Decoder(samprate=SAMPLE_RATE, loglevel="FATAL", lm=str(lm), dict=str(words))
+        self._decoder = small_lm_decoder(text, dictionary)
         self._noise = np.random.default_rng(0).normal(0.0, NOISE_FLOOR_STD, SAMPLE_RATE).astype(np.float32)
         self._offset = 0
         self._open = False

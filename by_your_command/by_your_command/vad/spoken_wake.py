@@ -23,6 +23,7 @@ import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -103,25 +104,30 @@ class WakeRecognizer:
         return WakeResult(text, self._matcher.match(text) is PhraseCommand.WAKE)
 
 
+def small_lm_decoder(text: str, dictionary: dict[str, list[str]]) -> Any:
+    """A pocketsphinx decoder whose language model is `text` (one sentence per line; a word's share
+    of the lines is its prior), with only those words' pronunciations (loading all 135k entries of
+    the dictionary takes seconds)."""
+    from pocketsphinx import Decoder  # type: ignore[import-untyped]
+    from pocketsphinx.lm import ArpaBoLM  # type: ignore[import-untyped]
+
+    model = ArpaBoLM(text=text, add_start=True, case="lower")
+    model.compute()
+    arpa = io.StringIO()
+    model.write(arpa)
+    with tempfile.TemporaryDirectory(prefix="byc_lm_") as tmp:
+        lm, words = Path(tmp) / "small.arpa", Path(tmp) / "small.dict"
+        lm.write_text(arpa.getvalue(), encoding="utf-8")
+        spoken = sorted(set(text.split()))
+        words.write_text("".join(f"{e}\n" for w in spoken for e in dictionary[w]), encoding="utf-8")
+        return Decoder(samprate=SAMPLE_RATE, loglevel="FATAL", lm=str(lm), dict=str(words))
+
+
 class SmallVocabulary:
-    """pocketsphinx decoding one utterance against a language model made of `text` (one sentence per
-    line; a word's share of the lines is its prior), with only those words' pronunciations
-    (loading all 135k entries of the dictionary takes seconds). Not thread-safe."""
+    """pocketsphinx decoding one utterance at a time against `small_lm_decoder(text)`. Not thread-safe."""
 
     def __init__(self, text: str, dictionary: dict[str, list[str]], max_s: float) -> None:
-        from pocketsphinx import Decoder  # type: ignore[import-untyped]
-        from pocketsphinx.lm import ArpaBoLM  # type: ignore[import-untyped]
-
-        model = ArpaBoLM(text=text, add_start=True, case="lower")
-        model.compute()
-        arpa = io.StringIO()
-        model.write(arpa)
-        with tempfile.TemporaryDirectory(prefix="byc_lm_") as tmp:
-            lm, words = Path(tmp) / "small.arpa", Path(tmp) / "small.dict"
-            lm.write_text(arpa.getvalue(), encoding="utf-8")
-            spoken = sorted(set(text.split()))
-            words.write_text("".join(f"{e}\n" for w in spoken for e in dictionary[w]), encoding="utf-8")
-            self._decoder = Decoder(samprate=SAMPLE_RATE, loglevel="FATAL", lm=str(lm), dict=str(words))
+        self._decoder = small_lm_decoder(text, dictionary)
         self._noise = np.random.default_rng(0).normal(0.0, NOISE_FLOOR_STD, int(max_s * SAMPLE_RATE))
 
     def transcribe(self, pcm: Int16Array, sample_rate: int) -> str:
