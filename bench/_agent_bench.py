@@ -191,6 +191,24 @@ def setup_requests(settings: dict[str, Any]) -> int:
         async def receive(self, timeout: float | None = None) -> Delivery:
             raise NotImplementedError
 
+        async def call_service(
+            self,
+            service: str,
+            args: dict[str, Any],
+            request_id: str,
+            service_type: str | None = None,
+            timeout_s: float | None = None,
+        ) -> None:
+            raise NotImplementedError
+
+        async def send_action_goal(
+            self, action: str, action_type: str, args: dict[str, Any], request_id: str
+        ) -> None:
+            raise NotImplementedError
+
+        async def cancel_action_goal(self, action: str, request_id: str) -> None:
+            raise NotImplementedError
+
     counter = Counter()
     agent = {key: value for key, value in settings.items() if key not in ("provider", "bridge")}
     asyncio.run(BridgePort(counter, parse_agent_config(agent)).setup())

@@ -39,7 +39,7 @@ from _proc import Series, process_names, sample_tree
 
 from by_your_command.audio.pcm import read_wav, write_wav
 from by_your_command.bridge.client import BridgeClient, ClientOptions
-from by_your_command.bridge.client_messages import Lost
+from by_your_command.bridge.client_messages import Lost, Received
 from by_your_command.demo.child import ChildGraph
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -199,7 +199,8 @@ async def soak(args: argparse.Namespace, workdir: Path) -> int:
                 if isinstance(delivery, Lost):
                     tally.lost_reports += 1
                     continue
-                tally.feed(delivery.topic, delivery.msg, now)
+                if isinstance(delivery, Received):  # (the soak makes no service calls)
+                    tally.feed(delivery.topic, delivery.msg, now)
     finally:
         wall_s = time.monotonic() - started
         await child.stop(25.0)

@@ -22,6 +22,7 @@ EXECUTABLES = {
     "publish_command": "by_your_command.cli.publish_command:main",
     "ros_ai_bridge": "by_your_command.nodes.ros_ai_bridge:main",
     "frame_forwarder": "by_your_command.nodes.frame_forwarder:main",
+    "demo_robot": "by_your_command.nodes.demo_robot:main",  # a pretend robot: NavigateToPose, dock
     "audio_capture": "by_your_command.nodes.audio_capture:main",
     "echo_suppressor": "by_your_command.nodes.echo_suppressor:main",
     "simple_audio_player": "by_your_command.nodes.simple_audio_player:main",

@@ -23,6 +23,8 @@ ROS_ONLY_MODULES = (
     "geometry_msgs",
     "diagnostic_msgs",
     "by_your_command_msgs",
+    "action_msgs",
+    "rosidl_parser",
     "ament_index_python",
 )
 # Python source that makes every ROS package unimportable in the interpreter that runs it.

@@ -21,6 +21,8 @@ from by_your_command.agents.detections import detection2d_array, detections_json
 from by_your_command.agents.inputs import (
     Attention,
     AttentionChanged,
+    CallFeedback,
+    CallReplied,
     CameraFrame,
     CommandStatus,
     ConversationReset,
@@ -30,6 +32,7 @@ from by_your_command.agents.inputs import (
     RobotInput,
     SafetyStop,
     SharedTurn,
+    ToolCatalog,
     UtteranceChunk,
     VoiceActivity,
 )
@@ -42,7 +45,15 @@ from by_your_command.agents.port import (
     VoiceChunk,
 )
 from by_your_command.agents.provider import Role
-from by_your_command.bridge.client_messages import BridgeUnavailable, ClientStopped, Delivery, Lost
+from by_your_command.bridge.client_messages import (
+    BridgeUnavailable,
+    ClientStopped,
+    Delivery,
+    GoalFeedback,
+    GoalResult,
+    Lost,
+    ServiceReply,
+)
 
 AUDIO_CHUNK = "by_your_command_msgs/msg/AudioChunk"
 UTTERANCE = "by_your_command_msgs/msg/AudioDataUtterance"
@@ -66,6 +77,21 @@ class BridgeLike(Protocol):
     async def publish(self, topic: str, msg: dict[str, Any]) -> None: ...
 
     async def receive(self, timeout: float | None = None) -> Delivery: ...
+
+    async def call_service(
+        self,
+        service: str,
+        args: dict[str, Any],
+        request_id: str,
+        service_type: str | None = None,
+        timeout_s: float | None = None,
+    ) -> None: ...
+
+    async def send_action_goal(
+        self, action: str, action_type: str, args: dict[str, Any], request_id: str
+    ) -> None: ...
+
+    async def cancel_action_goal(self, action: str, request_id: str) -> None: ...
 
 
 class BadMessage(ValueError):
@@ -153,6 +179,18 @@ def _verdict(msg: dict[str, Any]) -> RobotInput:
     )
 
 
+def _call_input(delivery: ServiceReply | GoalResult | GoalFeedback) -> RobotInput:
+    """A reply to one of our robot tool requests: ids are ours as strings (another id is stray)."""
+    request_id = str(delivery.id)
+    if isinstance(delivery, GoalFeedback):
+        return CallFeedback(request_id, delivery.values)
+    if isinstance(delivery, ServiceReply):
+        return CallReplied(request_id, delivery.ok, delivery.values, delivery.error[:500], delivery.code)
+    return CallReplied(
+        request_id, delivery.ok, delivery.values, delivery.error[:500], delivery.code, delivery.status, True
+    )
+
+
 def _stamp(wall: float) -> dict[str, Any]:
     sec = int(wall)
     return {"stamp": {"sec": sec, "nanosec": int((wall - sec) * 1e9)}, "frame_id": ""}
@@ -173,6 +211,9 @@ class BridgePort:
         self._add(topics.command_status, VERDICT, _verdict)
         self._add(topics.conversation_reset, STRING, lambda msg: ConversationReset(_field(msg, "data", str)))
         self._add(topics.safety_stop, STRING, lambda msg: SafetyStop(_field(msg, "data", str)[:200]))
+        if config.role is AgentRole.TOOLS:
+            self._add(topics.robot_tools, STRING, lambda msg: ToolCatalog(_field(msg, "data", str)))
+        self._tool_topics: set[str] = set()  # advertised for robot tools of kind topic
         if config.context_source is ContextSource.SHARED:  # the conversation agent's turns
             self._add(
                 topics.prompt_transcript, STRING, lambda msg: SharedTurn(Role.USER, _field(msg, "data", str))
@@ -218,6 +259,8 @@ class BridgePort:
     def convert(self, delivery: Delivery) -> RobotInput:
         if isinstance(delivery, Lost):
             return InputLost(delivery.topic, delivery.count, delivery.reason)
+        if isinstance(delivery, (ServiceReply, GoalResult, GoalFeedback)):
+            return _call_input(delivery)
         known = self._inputs.get(delivery.topic)
         if known is None:
             return InputLost(delivery.topic, 1, "invalid message: not a topic this agent reads")
@@ -230,6 +273,37 @@ class BridgePort:
         if topic not in self._outputs:
             return  # switched off in the config (or not this agent's to publish)
         try:
+            await self._client.publish(topic, msg)
+        except BridgeUnavailable as error:
+            raise PortUnavailable(str(error)) from error
+
+    async def call_service(
+        self, request_id: str, service: str, service_type: str, args: dict[str, Any]
+    ) -> None:
+        try:
+            await self._client.call_service(service, args, request_id, service_type)
+        except BridgeUnavailable as error:
+            raise PortUnavailable(str(error)) from error
+
+    async def send_action_goal(
+        self, request_id: str, action: str, action_type: str, args: dict[str, Any]
+    ) -> None:
+        try:
+            await self._client.send_action_goal(action, action_type, args, request_id)
+        except BridgeUnavailable as error:
+            raise PortUnavailable(str(error)) from error
+
+    async def cancel_action_goal(self, request_id: str, action: str) -> None:
+        try:
+            await self._client.cancel_action_goal(action, request_id)
+        except BridgeUnavailable as error:
+            raise PortUnavailable(str(error)) from error
+
+    async def publish_tool_message(self, topic: str, msg_type: str, msg: dict[str, Any]) -> None:
+        try:
+            if topic not in self._tool_topics:
+                await self._client.advertise(topic, msg_type)
+                self._tool_topics.add(topic)
             await self._client.publish(topic, msg)
         except BridgeUnavailable as error:
             raise PortUnavailable(str(error)) from error

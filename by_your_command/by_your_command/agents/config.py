@@ -56,6 +56,7 @@ class Topics:
     command_status: str = "command_status"
     conversation_reset: str = "conversation_reset"
     safety_stop: str = "safety_stop"  # the VAD heard a stop phrase itself (the stop is already routed)
+    robot_tools: str = "robot_tools"  # tools role: the robot's own tools, from the bridge (docs/tools.md)
     response_voice: str = "response_voice"
     response_text: str = "response_text"
     response_cmd: str = "response_cmd"
@@ -109,6 +110,10 @@ class AgentConfig:
     conversation_timeout_s: float = 600.0  # inactivity that starts a new conversation
     # tools, camera
     tool_verdict_timeout_s: float = 3.0
+    # A robot action's session stays open until the action ends, so the result goes to the call
+    # that asked for it (docs/tools.md). Sessions are billed while open: false closes it at the
+    # pause as usual, and the result is told to the next session as a note.
+    keep_session_while_acting: bool = True
     max_frame_age_s: float = 5.0
     # A frame that arrived this long before a question's first audio is of its time; an older one
     # goes only if none arrives while the question is spoken.

@@ -86,6 +86,10 @@ class ContextStore:
             position -= 1
         self._turns.insert(position, entry)
 
+    def last_user_text(self) -> str:
+        """What the user said last ("" if nothing is kept)."""
+        return next((entry.text for entry in reversed(self._turns) if entry.role is Role.USER), "")
+
     def history(self, now: float) -> tuple[HistoryTurn, ...]:
         self._trim(now)
         return tuple(HistoryTurn(entry.role, entry.text) for entry in self._turns)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 from by_your_command.agents.provider import Role
 
@@ -115,6 +116,34 @@ class SharedTurn:
     text: str
 
 
+@dataclass(frozen=True)
+class ToolCatalog:
+    """The robot's tools (`robot_tools`, JSON from the bridge, docs/tools.md); untrusted until parsed."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class CallReplied:
+    """A service's response or an action goal's end, for the request id we sent (docs/tools.md)."""
+
+    request_id: str
+    ok: bool
+    values: Any  # the response/result fields when ok
+    error: str = ""
+    code: str = ""  # the bridge's reason on failure (no_server, rejected, timeout, ...)
+    status: int = 0  # actions: action_msgs/GoalStatus
+    is_action: bool = False
+
+
+@dataclass(frozen=True)
+class CallFeedback:
+    """An action goal's feedback, for the request id we sent."""
+
+    request_id: str
+    values: dict[str, Any]
+
+
 RobotInput = (
     UtteranceChunk
     | PromptText
@@ -127,4 +156,7 @@ RobotInput = (
     | ConversationReset
     | SharedTurn
     | SafetyStop
+    | ToolCatalog
+    | CallReplied
+    | CallFeedback
 )

@@ -56,7 +56,27 @@ class SessionOpenedMetrics:
         return {"record": "session_open", **asdict(self)}
 
 
-MetricsRecord = TurnMetrics | SessionMetrics | SessionOpenedMetrics
+@dataclass(frozen=True)
+class ToolCallMetrics:
+    """A robot tool call (docs/tools.md) started, made progress or ended: monitors show the
+    robot's active goals, their latest feedback and how each ended."""
+
+    agent_id: str
+    request_id: str  # the id the bridge and the robot saw
+    tool: str
+    kind: str  # action | service | topic | command
+    arguments: str  # the model's arguments (JSON, cut to 200 characters)
+    # running | succeeded | failed | rejected | cancelled | timeout | refused | unavailable | published
+    state: str
+    progress: str = ""  # the latest feedback summary told to the model
+    elapsed_s: float = 0.0  # since the call was sent
+    error: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"record": "tool_call", **asdict(self)}
+
+
+MetricsRecord = TurnMetrics | SessionMetrics | SessionOpenedMetrics | ToolCallMetrics
 
 
 def _flatten(record: TurnMetrics | SessionMetrics) -> dict[str, Any]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Protocol
+from typing import Any, Protocol
 
 from by_your_command.agents.detections import Detection, FrameInfo
 from by_your_command.agents.inputs import RobotInput
@@ -77,6 +77,22 @@ class RobotPort(Protocol):
 
     async def publish_detections(self, detections: DetectionReport) -> None:
         """`detections`: boxes the model found, in pixels of the frame it was shown (JSON)."""
+
+    async def call_service(
+        self, request_id: str, service: str, service_type: str, args: dict[str, Any]
+    ) -> None:
+        """A robot tool's service request; its response comes back as CallReplied(request_id)."""
+
+    async def send_action_goal(
+        self, request_id: str, action: str, action_type: str, args: dict[str, Any]
+    ) -> None:
+        """A robot tool's action goal; CallFeedback and one CallReplied(request_id) come back."""
+
+    async def cancel_action_goal(self, request_id: str, action: str) -> None:
+        """Cancel the goal sent with `request_id` (its CallReplied still comes)."""
+
+    async def publish_tool_message(self, topic: str, msg_type: str, msg: dict[str, Any]) -> None:
+        """A robot tool's topic message (the bridge's allow-list decides)."""
 
     def inputs(self) -> AsyncIterator[RobotInput]:
         """Inputs in the order the robot side delivers them; ends when the port closes."""

@@ -34,6 +34,11 @@ class ToolSpec:
     name: str
     description: str
     parameters: dict[str, object]  # JSON schema
+    # A robot action that runs on after the call (docs/tools.md): its result comes later, with
+    # progress on the way; the model keeps talking meanwhile (Gemini: NON_BLOCKING).
+    long_running: bool = False
+    # What a user says to call it without a model (the offline provider): (phrase, arguments JSON).
+    spoken: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -93,6 +98,10 @@ class Provider(Protocol):
     async def send_tool_results(self, results: Sequence[ToolResult]) -> None:
         """The results of every ToolCall of one response, together: the model continues with one
         reply (the runtime never sends part of a response's results)."""
+
+    async def send_tool_progress(self, call_id: str, text: str) -> None:
+        """How a long-running call (a robot action) is going: the model knows it from now on, no
+        reply is asked for, the call stays open (its result comes with send_tool_results)."""
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         """Cancel the reply and make the history match what was heard: `played_ms` of `item_id`

@@ -148,6 +148,7 @@ class PendingVerdicts:
 @dataclass
 class _ResponseCalls:
     session: int  # the provider session whose response made the calls (only it can take the results)
+    turn: int  # the turn it answered (0: none): results of a turn that is over make a turn of their own
     call_ids: list[str] = field(default_factory=list)
     results: dict[str, str] = field(default_factory=dict)
     done: bool = False  # the response ended: no more calls will come in it
@@ -161,8 +162,12 @@ class ResponseResults:
     def __init__(self) -> None:
         self._responses: dict[str, _ResponseCalls] = {}
 
-    def expect(self, session: int, response_id: str, call_id: str) -> None:
-        self._responses.setdefault(response_id, _ResponseCalls(session)).call_ids.append(call_id)
+    def expect(self, session: int, response_id: str, call_id: str, turn: int = 0) -> None:
+        self._responses.setdefault(response_id, _ResponseCalls(session, turn)).call_ids.append(call_id)
+
+    def calls_of(self, response_id: str) -> list[str]:
+        calls = self._responses.get(response_id)
+        return list(calls.call_ids) if calls is not None else []
 
     def answer(self, call_id: str, output: str) -> None:
         for calls in self._responses.values():
@@ -180,8 +185,8 @@ class ResponseResults:
         if calls is not None:
             calls.done = True
 
-    def take_ready(self) -> list[tuple[int, tuple[ToolResult, ...]]]:
-        """(session, results) of every response now complete, in the order the calls came;
+    def take_ready(self) -> list[tuple[int, int, tuple[ToolResult, ...]]]:
+        """(session, turn, results) of every response now complete, in the order the calls came;
         a response whose calls were all withdrawn has nothing to send and is dropped."""
         ready = [
             (response_id, calls)
@@ -191,7 +196,7 @@ class ResponseResults:
         for response_id, _ in ready:
             del self._responses[response_id]
         return [
-            (calls.session, tuple(ToolResult(c, calls.results[c]) for c in calls.call_ids))
+            (calls.session, calls.turn, tuple(ToolResult(c, calls.results[c]) for c in calls.call_ids))
             for _, calls in ready
             if calls.call_ids
         ]

@@ -9,7 +9,9 @@ docs/agents.md describes the behaviour; the comments here say why where it is no
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
+import re
 import secrets
 from collections import deque
 from collections.abc import Awaitable, Callable, Coroutine
@@ -48,6 +50,8 @@ from by_your_command.agents.frame_size import jpeg_size
 from by_your_command.agents.inputs import (
     Attention,
     AttentionChanged,
+    CallFeedback,
+    CallReplied,
     CameraFrame,
     CommandStatus,
     ConversationReset,
@@ -57,15 +61,30 @@ from by_your_command.agents.inputs import (
     RobotInput,
     SafetyStop,
     SharedTurn,
+    ToolCatalog,
     UtteranceChunk,
     VoiceActivity,
 )
-from by_your_command.agents.metrics import Counters, SessionMetrics, SessionOpenedMetrics, TurnMetrics
+from by_your_command.agents.metrics import (
+    Counters,
+    SessionMetrics,
+    SessionOpenedMetrics,
+    ToolCallMetrics,
+    TurnMetrics,
+)
 from by_your_command.agents.outbox import Outbox
 from by_your_command.agents.overlap_words import interrupting_words
 from by_your_command.agents.port import DetectionReport, PlayerAction, PortClosed, RobotPort, VoiceChunk
-from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup
+from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup, ToolResult, ToolSpec
 from by_your_command.agents.reply_audio import ReplyAudio
+from by_your_command.agents.robot_calls import (
+    MAX_ACTIVE_CALLS,
+    REPLY_GRACE_S,
+    RobotCall,
+    RobotCalls,
+    call_result,
+    is_stop_request,
+)
 from by_your_command.agents.robot_tool import (
     ROBOT_COMMAND_TOOL,
     TOOL_NAME,
@@ -83,6 +102,7 @@ from by_your_command.agents.session import (
     SendAudio,
     SendImage,
     SendText,
+    SendToolProgress,
     SendToolResults,
     Session,
     SessionEvent,
@@ -94,6 +114,7 @@ from by_your_command.agents.session import (
 )
 from by_your_command.agents.turn import Turn
 from by_your_command.audio.pcm import StreamResampler
+from by_your_command.tools.catalog import Catalog, CatalogError, RobotTool, ToolArgumentError
 
 log = logging.getLogger(__name__)
 
@@ -108,9 +129,17 @@ SAFETY_STOP_NOTE = (
     '"{phrase}" (the robot heard this itself and stopped at once: every motion command was '
     'stopped and the reply cut; it said "Stopping.")'
 )
+# What the model reads when a robot action it started ends after its session did (or the call was
+# withdrawn): the call itself is gone, so the result comes as a note, and the model tells the user.
+LATE_RESULT_NOTE = (
+    "(The robot reports: your earlier call {tool}({arguments}) ended: {result}. Tell the user briefly.)"
+)
 # A tool call's command is routed once the provider events queued behind it are handled (a
 # cancellation may be among them), but never held behind more than this many.
 MAX_ROUTE_DEFERRALS = 64
+# A deadline this close is due now: sums of float times land a rounding error short of a
+# deadline, and a wait of 1e-16 s never advances the clock (the loop would spin on it).
+DEADLINE_SLACK_S = 1e-6
 
 
 class AgentFatal(RuntimeError):
@@ -130,10 +159,18 @@ class _Heard:
     covered_bytes: int
 
 
+@dataclass(frozen=True)
+class _SendFailed:
+    """A robot tool's request could not be sent to the bridge."""
+
+    request_id: str
+    error: str
+
+
 _STOP = _Stop()
-_Item = RobotInput | SessionMessage | _Heard | _Stop
+_Item = RobotInput | SessionMessage | _Heard | _SendFailed | _Stop
 # Items the scheduler made itself (or its sessions did): they hold no place in the input backlog.
-_OWN_ITEMS = (SessionOpened, SessionEvent, SessionFailed, _Heard)
+_OWN_ITEMS = (SessionOpened, SessionEvent, SessionFailed, _Heard, _SendFailed)
 
 # pcm (int16 LE) and its rate -> the words heard (the app runs the recogniser on a worker thread)
 Transcriber = Callable[[bytes, int], Awaitable[str]]
@@ -191,6 +228,9 @@ class AgentRuntime:
         self._barge_turn: Turn | None = None
         self._tools = PendingVerdicts()
         self._results = ResponseResults()
+        self._catalog = Catalog(())  # the robot's own tools, from `robot_tools` (docs/tools.md)
+        self.robot_calls = RobotCalls()
+        self._long_responses: deque[str] = deque(maxlen=RECENT_CUTS)  # responses that started actions
         self._requests = 0  # command requests sent: their ids name this run and this count
         self._provider_backlog = 0  # session messages in the queue, not handled yet
         self._route_deferrals = 0
@@ -305,6 +345,8 @@ class AgentRuntime:
             return self._queue.get_nowait()
         deadline = min((d.when for d in self._deadlines()), default=None)
         timeout = None if deadline is None else max(0.0, deadline - self._clock.now())
+        if timeout is not None and timeout < DEADLINE_SLACK_S:
+            timeout = 0.0
         if timeout == 0.0:
             if self._spins <= 2:
                 return None
@@ -316,6 +358,7 @@ class AgentRuntime:
 
     async def _run_due(self) -> None:
         now = self._clock.now()
+        now += DEADLINE_SLACK_S  # a deadline a rounding error away is due (else the loop spins)
         due = [d for d in self._deadlines() if d.when <= now]
         for deadline in due:
             await deadline.handler()
@@ -344,6 +387,9 @@ class AgentRuntime:
         tool_deadline = self._tools.next_deadline()
         if tool_deadline is not None:
             found.append(_Deadline(tool_deadline, "tool verdict", self._tool_verdicts_late))
+        calls_deadline = self.robot_calls.next_deadline()
+        if calls_deadline is not None:
+            found.append(_Deadline(calls_deadline, "robot calls", self._robot_calls_due))
         if self._reconnect_at is not None:
             found.append(_Deadline(self._reconnect_at, "reconnect", self._reconnect))
         reply = self._reply
@@ -367,15 +413,19 @@ class AgentRuntime:
             and not self._waiting
             and self._barge is None
             and len(self._tools) == 0
+            # a running action keeps its session: only that session can take the call's result
+            and not (self.robot_calls and self.config.keep_session_while_acting)
             and self._reconnect_at is None
             and not (self._reply is not None and self._reply.is_playing(now))
         )
 
     # --- dispatch ----------------------------------------------------------------------------
 
-    async def _handle(self, item: RobotInput | SessionMessage | _Heard) -> None:
+    async def _handle(self, item: RobotInput | SessionMessage | _Heard | _SendFailed) -> None:
         if isinstance(item, (SessionOpened, SessionEvent, SessionFailed)):
             await self._on_session_message(item)
+        elif isinstance(item, (CallReplied, CallFeedback, ToolCatalog, _SendFailed)):
+            await self._on_robot_tool_input(item)
         elif isinstance(item, _Heard):
             await self._on_heard(item)
         elif isinstance(item, SafetyStop):
@@ -546,6 +596,8 @@ class AgentRuntime:
         if len(text) > MAX_TEXT_CHARS:
             self.counters.inputs_invalid += 1
             text = text[:MAX_TEXT_CHARS]
+        if is_stop_request(text):  # before any other check: a typed stop is heard asleep too
+            await self._cancel_robot_calls(f"the user said {text[:40]!r}")
         if self._attention is not Attention.AWAKE:
             self.counters.ignored_not_awake += 1
             return
@@ -629,6 +681,11 @@ class AgentRuntime:
         if turn.kind == "text":
             self._send_frame(session)
             session.send(SendText(turn.text))
+        elif turn.kind == "tool":  # results of robot actions that ended after their turn
+            if turn.tool_session == session.serial:
+                session.send(SendToolResults(turn.tool_results))
+            else:  # the calls were another session's: the model hears of them as a note
+                session.send(SendText(turn.text))
         else:
             session.send(EndOfTurn())
         self._last_activity = self._awaited_at = self._committed_at = self._clock.now()
@@ -871,6 +928,7 @@ class AgentRuntime:
         reply ends here (nothing more of it is published), the model's memory keeps only what was
         heard, and the conversation says that the user stopped the robot."""
         self.counters.safety_stops += 1
+        await self._cancel_robot_calls(f"the robot heard {stop.phrase[:40]!r}")
         now = self._clock.now()
         reply, barge = self._reply, self._barge
         if barge is not None:  # the stop settles it: the reply is cut, the speech is the user's
@@ -943,6 +1001,8 @@ class AgentRuntime:
                 self.counters.empty_transcripts += 1
                 log.info("agent %s: the provider heard no words", self.config.agent_id)
             elif self.config.context_source is ContextSource.OWN:
+                if is_stop_request(event.text):
+                    await self._cancel_robot_calls(f"the user said {event.text.strip()[:40]!r}")
                 if not self._session_is_old_conversation():
                     self.context.add_user_before_reply(event.text, self._clock.now(), self._committed_at)
                 self._publish("prompt_transcript", partial(self._port.publish_transcript, event.text.strip()))
@@ -1043,10 +1103,14 @@ class AgentRuntime:
 
     async def _on_tool_call(self, session: Session, turn: Turn | None, call: ToolCall) -> None:
         self.counters.tool_calls += 1
-        self._results.expect(session.serial, call.response_id, call.call_id)
+        self._results.expect(session.serial, call.response_id, call.call_id, turn.number if turn else 0)
         if turn is not None:
             turn.tool_calls_open.add(call.call_id)
             turn.tool_responses.add(call.response_id)
+        robot_tool = self._catalog.get(call.name) if self.config.role is AgentRole.TOOLS else None
+        if robot_tool is not None:
+            await self._start_robot_call(session, robot_tool, call)
+            return
         if self.config.role is not AgentRole.TOOLS or call.name != TOOL_NAME:
             self._deliver_tool_result(call.call_id, result_json(False, "", f"no tool named {call.name!r}"))
             return
@@ -1055,6 +1119,8 @@ class AgentRuntime:
         except BadToolCall as error:
             self._deliver_tool_result(call.call_id, result_json(False, "", str(error)))
             return
+        if is_stop_request(command):  # the model stops the robot: its actions too
+            await self._cancel_robot_calls(f"stopped ({command!r})")
         self._requests += 1
         request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
         self._tools.add(
@@ -1083,6 +1149,12 @@ class AgentRuntime:
         turn = self._turn_out
         had_open = turn is not None and bool(turn.tool_calls_open)
         for call_id in event.call_ids:
+            robot_call = self.robot_calls.by_call_id(call_id)
+            if robot_call is not None:  # the robot goes on (only a stop cancels); its end becomes a note
+                robot_call.orphaned = True
+                if turn is not None:
+                    turn.tool_calls_open.discard(call_id)
+                continue
             withdrawn = self._tools.cancel(call_id)
             if withdrawn is None:
                 continue  # answered already (or never ours): nothing to withdraw
@@ -1135,10 +1207,218 @@ class AgentRuntime:
         self._send_tool_results()
 
     def _send_tool_results(self) -> None:
-        """Each response's results once it is done and all are in: one request for a reply."""
-        for serial, results in self._results.take_ready():
-            if self._session is not None and self._session.serial == serial:
-                self._session.send(SendToolResults(results))
+        """Each response's results once it is done and all are in: one request for a reply. The
+        results of a response whose turn is over (it started a robot action) make a turn of their
+        own, after the reply in progress."""
+        for serial, turn_number, results in self._results.take_ready():
+            out = self._turn_out
+            if out is not None and out.number == turn_number:
+                if self._session is not None and self._session.serial == serial:
+                    self._session.send(SendToolResults(results))
+            else:
+                self._queue_result_turn(serial, results)
+
+    # --- robot tools (docs/tools.md) ---------------------------------------------------------
+
+    def _tool_specs(self) -> tuple[ToolSpec, ...]:
+        if self.config.role is not AgentRole.TOOLS:
+            return ()
+        return (ROBOT_COMMAND_TOOL, *(_robot_tool_spec(tool) for tool in self._catalog.tools))
+
+    async def _on_robot_tool_input(
+        self, item: CallReplied | CallFeedback | ToolCatalog | _SendFailed
+    ) -> None:
+        if isinstance(item, ToolCatalog):
+            self._on_catalog(item)
+        elif isinstance(item, CallFeedback):
+            call = self.robot_calls.feedback(item.request_id, item.values, self._clock.now())
+            if call is not None:
+                self._tell_progress(call)
+        elif isinstance(item, CallReplied):
+            self._on_call_replied(item)
+        else:
+            self._on_call_replied(CallReplied(item.request_id, False, None, item.error, "disconnected"))
+
+    def _on_catalog(self, item: ToolCatalog) -> None:
+        try:
+            catalog = Catalog.from_json(item.text)
+        except CatalogError as error:
+            self.counters.inputs_invalid += 1
+            log.warning("agent %s: the robot's tool list was refused: %s", self.config.agent_id, error)
+            return
+        if catalog == self._catalog:
+            return
+        self._catalog = catalog
+        names = ", ".join(tool.name for tool in catalog.tools) or "none"
+        log.info("agent %s: the robot's tools: %s", self.config.agent_id, names)
+        if self._session is not None and self.config.role is AgentRole.TOOLS:
+            self._close_at_boundary()  # a session is told its tools when it opens
+            self._recycle = self._recycle or "the robot's tools changed"
+
+    async def _start_robot_call(self, session: Session, tool: RobotTool, call: ToolCall) -> None:
+        now = self._clock.now()
+        try:
+            refusal = self._robot_call_refusal(tool, call.arguments, now)
+            if not refusal and tool.kind == "command":
+                command = tool.command_text(call.arguments)
+            elif not refusal:
+                message = tool.build(call.arguments)
+        except ToolArgumentError as error:
+            refusal = f"bad arguments: {error}"
+        if refusal:
+            self.robot_calls.counters.refused += 1
+            log.info("agent %s: %s refused: %s", self.config.agent_id, tool.name, refusal)
+            self._publish_call(tool, "", call.arguments, "refused", error=refusal)
+            self._deliver_tool_result(call.call_id, call_result(tool.name, False, "refused", error=refusal))
+            return
+        self._requests += 1
+        request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
+        if tool.kind == "command":  # the command processor's verdict answers it, like robot_command
+            self._tools.add(call.call_id, request_id, command, now + self.config.tool_verdict_timeout_s)
+            return
+        if tool.kind == "topic":
+            send = partial(self._port.publish_tool_message, tool.ros_name, tool.type, message)
+            self._send_robot_request(request_id, send)
+            self._publish_call(tool, request_id, call.arguments, "published")
+            self._deliver_tool_result(call.call_id, call_result(tool.name, True, "published", {}))
+            return
+        action = tool.kind == "action"
+        limit = tool.rules.max_duration_s if action else tool.rules.timeout_s + REPLY_GRACE_S
+        self.robot_calls.start(
+            RobotCall(call.call_id, session.serial, tool, request_id, call.arguments, now, now + limit)
+        )
+        log.info(
+            "agent %s: %s(%s) sent as %s", self.config.agent_id, tool.name, call.arguments[:200], request_id
+        )
+        if action:
+            self._long_responses.append(call.response_id)
+            send = partial(self._port.send_action_goal, request_id, tool.ros_name, tool.type, message)
+        else:
+            send = partial(self._port.call_service, request_id, tool.ros_name, tool.type, message)
+        self._send_robot_request(request_id, send)
+        self._publish_call(tool, request_id, call.arguments, "running")
+
+    def _robot_call_refusal(self, tool: RobotTool, arguments: str, now: float) -> str:
+        """Why the rules refuse this call now ("" if they do not): nothing is sent then."""
+        if self._attention is not Attention.AWAKE and not tool.rules.while_asleep:
+            return f"the robot is {self._attention.value}: {tool.name} waits until it is woken"
+        wait = self.robot_calls.too_soon(tool, now)
+        if wait > 0:
+            return f"called too soon: {tool.name} may run again in {wait:.1f} s"
+        if tool.kind != "command" and len(self.robot_calls) >= MAX_ACTIVE_CALLS:
+            return f"the robot is already doing {MAX_ACTIVE_CALLS} things: stop one first"
+        if tool.rules.confirm and not (
+            _confirmed(arguments) and _sounds_like_yes(self.context.last_user_text())
+        ):
+            return "this needs the user's spoken yes first: ask them, then call again with confirmed: true"
+        return ""
+
+    def _send_robot_request(self, request_id: str, send: Callable[[], Awaitable[None]]) -> None:
+        async def attempt() -> None:
+            try:
+                await send()
+            except ConnectionError as error:
+                self._queue.put_nowait(_SendFailed(request_id, str(error) or "the bridge is not connected"))
+
+        self._publish("robot tool", attempt)
+
+    def _tell_progress(self, call: RobotCall) -> None:
+        text = self.robot_calls.take_progress(call, self._clock.now())
+        session = self._session
+        if text and not call.orphaned and session is not None and session.serial == call.session:
+            session.send(SendToolProgress(call.call_id, f"{call.tool.name} in progress: {text}"))
+        self._publish_call(call.tool, call.request_id, call.arguments, "running", call, progress=text)
+
+    def _on_call_replied(self, reply: CallReplied) -> None:
+        call = self.robot_calls.finish(reply.request_id)
+        if call is None:
+            self.robot_calls.counters.stray_replies += 1
+            return
+        output = self.robot_calls.result_of(
+            call, reply.ok, reply.status, reply.values, reply.error, reply.code
+        )
+        self._answer_robot_call(call, output)
+
+    def _answer_robot_call(self, call: RobotCall, output: str) -> None:
+        result = json.loads(output)
+        self._publish_call(
+            call.tool, call.request_id, call.arguments, result["status"], call, error=result.get("error", "")
+        )
+        log.info(
+            "agent %s: %s (%s) ended: %s", self.config.agent_id, call.tool.name, call.request_id, output[:300]
+        )
+        session = self._session
+        if call.orphaned or session is None or session.serial != call.session:
+            # the call is gone with its session (or the provider withdrew it): a note instead
+            note = LATE_RESULT_NOTE.format(tool=call.tool.name, arguments=call.arguments[:200], result=output)
+            self._queue_result_turn(-1, (), note)
+            return
+        self._deliver_tool_result(call.call_id, output)
+
+    async def _robot_calls_due(self) -> None:
+        now = self._clock.now()
+        cancel, give_up = self.robot_calls.overdue(now)
+        for call in cancel:
+            self._cancel_robot_call(call, f"it took longer than {call.tool.rules.max_duration_s:g} s", now)
+        for call in give_up:
+            self.robot_calls.finish(call.request_id)
+            self._answer_robot_call(call, self.robot_calls.give_up(call))
+        for call in self.robot_calls.progress_due(now):
+            self._tell_progress(call)
+
+    async def _cancel_robot_calls(self, reason: str) -> None:
+        """A stop: every action the robot runs for us is cancelled (services end by themselves)."""
+        now = self._clock.now()
+        for call in self.robot_calls.active():
+            if call.long_running:
+                self._cancel_robot_call(call, reason, now)
+
+    def _cancel_robot_call(self, call: RobotCall, reason: str, now: float) -> None:
+        if not self.robot_calls.mark_cancelled(call, reason, now):
+            return
+        log.info(
+            "agent %s: cancelling %s (%s): %s", self.config.agent_id, call.tool.name, call.request_id, reason
+        )
+        self._send_robot_request(
+            call.request_id, partial(self._port.cancel_action_goal, call.request_id, call.tool.ros_name)
+        )
+
+    def _publish_call(
+        self,
+        tool: RobotTool,
+        request_id: str,
+        arguments: str,
+        state: str,
+        call: RobotCall | None = None,
+        progress: str = "",
+        error: str = "",
+    ) -> None:
+        elapsed = 0.0 if call is None else round(self._clock.now() - call.started_at, 3)
+        record = ToolCallMetrics(
+            self.config.agent_id,
+            request_id,
+            tool.name,
+            tool.kind,
+            arguments[:200],
+            state,
+            progress,
+            elapsed,
+            error,
+        )
+        self._publish("metrics", partial(self._port.publish_metrics, record))
+
+    def _queue_result_turn(self, serial: int, results: tuple[ToolResult, ...], note: str = "") -> None:
+        """A turn of its own for results whose turn is over: sent as they are to the session that
+        made the calls, or as a note to any other."""
+        now = self._clock.now()
+        self._turns += 1
+        if not note:
+            note = LATE_RESULT_NOTE.format(
+                tool="(several)", arguments="", result="; ".join(result.output for result in results)
+            )
+        turn = Turn(self._turns, "tool", now, 0, text=note, tool_results=results, tool_session=serial)
+        turn.ended_at = now
+        self._queue_commit(turn)
 
     async def _on_response_done(self, session: Session, turn: Turn | None, done: ResponseDone) -> None:
         self._add_usage(session, turn, done.usage)
@@ -1153,6 +1433,12 @@ class AgentRuntime:
             return
         if done.status is ResponseStatus.FAILED:
             await self._fail_turn(turn, f"the provider failed the reply ({done.reason or 'no reason'})")
+        elif done.response_id in self._long_responses:
+            # It started a robot action: its results (all of them, together) come when the action
+            # ends, in a turn of their own; the conversation goes on meanwhile.
+            turn.tool_calls_open.difference_update(self._results.calls_of(done.response_id))
+            if not turn.tool_calls_open:
+                await self._finish_turn(turn, "acting")
         elif turn.tool_calls_open or done.response_id in turn.tool_responses:
             return  # the reply continues once the verdicts are in (a tool-calling response is never the last)
         elif self._barge is not None and self._barge.reply is reply:
@@ -1197,7 +1483,7 @@ class AgentRuntime:
         setup = SessionSetup(
             self._instructions,
             self.context.history(now),
-            (ROBOT_COMMAND_TOOL,) if self.config.role is AgentRole.TOOLS else (),
+            self._tool_specs(),
             audio_out=self.config.speaks,
             conversation_id=self.context.conversation_id,
         )
@@ -1432,6 +1718,39 @@ class AgentRuntime:
 
     def _keep_limit(self, rate: int) -> int:
         return int(self.config.connect_buffer_s * rate) * 2
+
+
+def _robot_tool_spec(tool: RobotTool) -> ToolSpec:
+    spoken = tuple((phrase, json.dumps(arguments)) for phrase, arguments in tool.spoken_forms())
+    return ToolSpec(tool.name, tool.description, tool.parameters, tool.kind == "action", spoken)
+
+
+def _confirmed(arguments: str) -> bool:
+    try:
+        return json.loads(arguments).get("confirmed") is True
+    except (ValueError, AttributeError):
+        return False
+
+
+_YES = {
+    "yes",
+    "yeah",
+    "yep",
+    "sure",
+    "ok",
+    "okay",
+    "confirm",
+    "confirmed",
+    "go",
+    "ahead",
+    "please",
+    "correct",
+}
+
+
+def _sounds_like_yes(text: str) -> bool:
+    """Positive evidence for a confirmation: the user's last words hold a yes."""
+    return any(word in _YES for word in re.findall(r"[a-z]+", text.lower()))
 
 
 async def _nothing() -> None:

@@ -56,13 +56,21 @@ class SendToolResults:
 
 
 @dataclass(frozen=True)
+class SendToolProgress:
+    call_id: str
+    text: str
+
+
+@dataclass(frozen=True)
 class Interrupt:
     response_id: str
     item_id: str
     played_ms: int
 
 
-Operation = SendAudio | EndOfTurn | SendText | AddContext | SendImage | SendToolResults | Interrupt
+Operation = (
+    SendAudio | EndOfTurn | SendText | AddContext | SendImage | SendToolResults | SendToolProgress | Interrupt
+)
 
 
 @dataclass(frozen=True)
@@ -216,6 +224,8 @@ class Session:
             await provider.send_image(operation.jpeg)
         elif isinstance(operation, SendToolResults):
             await provider.send_tool_results(operation.results)
+        elif isinstance(operation, SendToolProgress):
+            await provider.send_tool_progress(operation.call_id, operation.text)
         else:
             await provider.interrupt(operation.response_id, operation.item_id, operation.played_ms)
 

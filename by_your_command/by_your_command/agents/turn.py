@@ -12,13 +12,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from by_your_command.agents.events import Usage
+from by_your_command.agents.provider import ToolResult
 from by_your_command.audio.pcm import StreamResampler
 
 
 @dataclass
 class Turn:
     number: int
-    kind: str  # "voice" | "text"
+    kind: str  # "voice" | "text" | "tool" (results of robot actions, docs/tools.md)
     started_at: float
     keep_limit_bytes: int
     utterance_id: int | None = None
@@ -41,6 +42,9 @@ class Turn:
     first_audio_at: float | None = None
     tool_calls_open: set[str] = field(default_factory=set)
     tool_responses: set[str] = field(default_factory=set)  # responses that called tools: never the last
+    # kind "tool": results of robot actions that ended after their own turn, for this session
+    tool_results: tuple[ToolResult, ...] = ()
+    tool_session: int = 0
     usage: Usage = field(default_factory=Usage)
 
     @property

@@ -10,6 +10,11 @@
   counts and reports the loss, which comes out of receive() as a `Lost` in order.
 - receive() raises `ClientStopped` (after draining what was received) once the client is closed,
   refused or failed, instead of waiting forever.
+- Service calls and action goals (call_service, send_action_goal) are sent now or refused with an
+  exception; once sent, exactly one final delivery comes for each: a ServiceReply or GoalResult
+  from the bridge, or a failure made here (code "disconnected" when the connection drops, as the
+  bridge cancels a departed client's goals; "timeout" when a service reply is long overdue;
+  "not_active" when the bridge answers a cancel with no such goal). GoalFeedback is latest-wins.
 """
 
 from __future__ import annotations
@@ -36,8 +41,12 @@ from by_your_command.bridge.client_messages import (
     ClientHealth,
     ClientStopped,
     Delivery,
+    GoalFeedback,
+    GoalResult,
     Lost,
     Received,
+    ServiceReply,
+    TooManyCalls,
     zero_per_class,
 )
 from by_your_command.bridge.client_topics import TopicClasses, default_class
@@ -51,13 +60,19 @@ from by_your_command.bridge.client_wire import (
 from by_your_command.bridge.config import TOPIC_CLASSES, TopicClass
 from by_your_command.bridge.protocol import (
     Advertise,
+    CallService,
+    CancelActionGoal,
     Request,
+    RequestId,
+    SendActionGoal,
     Status,
     Subscribe,
     Unadvertise,
     Unsubscribe,
     encode_request,
+    normalize_interface,
     normalize_type,
+    parse_request,
 )
 
 __all__ = [
@@ -70,8 +85,12 @@ __all__ = [
     "ClientOptions",
     "ClientStopped",
     "Delivery",
+    "GoalFeedback",
+    "GoalResult",
     "Lost",
     "Received",
+    "ServiceReply",
+    "TooManyCalls",
 ]
 
 log = logging.getLogger(__name__)
@@ -102,6 +121,11 @@ class ClientOptions:
     max_message_bytes: int = 16 * 1024 * 1024
     retry_refusals: bool = False  # a 401 is a configuration error, not a transient one
     status_history: int = 100  # recent bridge statuses kept in `statuses`
+    max_outstanding_calls: int = 64  # service calls + goals sent and not yet answered
+    # A service call without timeout_s is failed here ("timeout") if no reply came after this long
+    # (plus reply_grace_s): its request may have been refused before the bridge could read its id.
+    reply_timeout_s: float = 120.0
+    reply_grace_s: float = 10.0  # added to every call's own timeout_s: the bridge answers first
 
     def __post_init__(self) -> None:
         if not 0 < self.backoff_initial_s <= self.backoff_max_s:
@@ -110,6 +134,8 @@ class ClientOptions:
             raise ValueError(f"backoff_jitter must be in [0, 1), got {self.backoff_jitter}")
         if self.receive_queue < 1 or self.command_queue < 1 or self.status_history < 1:
             raise ValueError("receive_queue, command_queue and status_history must be at least 1")
+        if self.max_outstanding_calls < 1 or not self.reply_timeout_s > 0 or not self.reply_grace_s >= 0:
+            raise ValueError("need max_outstanding_calls >= 1, reply_timeout_s > 0 and reply_grace_s >= 0")
 
     def inbox_limits(self) -> InboxLimits:
         return InboxLimits(
@@ -121,6 +147,15 @@ def backoff_delay(options: ClientOptions, attempt: int, rng: random.Random) -> f
     """Capped exponential delay with jitter, so many agents do not reconnect in lockstep."""
     delay = min(options.backoff_max_s, options.backoff_initial_s * 2.0 ** min(attempt, 30))
     return delay * rng.uniform(1.0 - options.backoff_jitter, 1.0)
+
+
+@dataclass
+class _Outstanding:
+    """A call or goal sent and not yet answered."""
+
+    kind: str  # "service" or "goal"
+    name: str  # the service or action, as sent
+    expiry: asyncio.TimerHandle | None = None
 
 
 def _worth_logging(count: int) -> bool:
@@ -140,6 +175,7 @@ class BridgeClient:
         self._on_status = on_status
         self._subscriptions: dict[str, Subscribe] = {}
         self._advertised: dict[str, Advertise] = {}
+        self._outstanding: dict[RequestId, _Outstanding] = {}
         self._classes = TopicClasses()
         self._inbox = Inbox(self.options.inbox_limits())
         self._arrived = asyncio.Event()  # something was queued, or the client stopped
@@ -265,16 +301,112 @@ class BridgeClient:
         """Send now or raise: BridgeUnavailable while disconnected (stale commands are never
         replayed later), ClientStopped once closed, ValueError/TypeError for a message that is
         not JSON (NaN included). A refusal by the bridge comes back as a status (`request_id`)."""
-        if self._stop_reason is not None:
-            raise self._stopped_error()
-        connection = self._connection
-        if connection is None or not self._connected.is_set():
-            raise BridgeUnavailable(f"cannot publish on {topic!r}: not connected to {self.url}")
+        connection = self._open_connection(f"cannot publish on {topic!r}")
         frame = encode_publish(topic, msg, request_id)
         try:
             await connection.send(frame)
         except ConnectionClosed as error:
             raise BridgeUnavailable(f"connection lost while publishing on {topic!r}") from error
+
+    async def call_service(
+        self,
+        service: str,
+        args: dict[str, Any],
+        request_id: RequestId,
+        service_type: str | None = None,
+        timeout_s: float | None = None,
+    ) -> None:
+        """Call a service through the bridge; its ServiceReply (same id) comes out of receive().
+
+        Raises like publish() (BridgeUnavailable, ClientStopped), plus ValueError for a request the
+        bridge would refuse anyway (bad name, type, timeout, NaN; an id already outstanding) and
+        TooManyCalls. `timeout_s`: how long the bridge waits (it may allow less)."""
+        normalized = normalize_interface(service_type, "srv") if service_type else None
+        request = CallService(service, args, request_id, normalized, timeout_s)
+        expires = (timeout_s or self.options.reply_timeout_s) + self.options.reply_grace_s
+        await self._send_call(request, _Outstanding("service", service), expires)
+
+    async def send_action_goal(
+        self, action: str, action_type: str, args: dict[str, Any], request_id: RequestId
+    ) -> None:
+        """Send a goal (with feedback); GoalFeedback and one GoalResult (same id) come out of receive().
+        Raises like call_service()."""
+        request = SendActionGoal(action, normalize_interface(action_type, "action"), args, request_id, True)
+        await self._send_call(request, _Outstanding("goal", action), None)
+
+    async def cancel_action_goal(self, action: str, request_id: RequestId) -> None:
+        """Ask the bridge to cancel the goal sent with `request_id`; its GoalResult still comes (status
+        5 canceled, or how it ended first). Nothing is sent for a goal that already ended here.
+        Raises BridgeUnavailable while disconnected (its goals were failed and cancelled already)."""
+        connection = self._open_connection(f"cannot cancel goal {request_id!r}")
+        entry = self._outstanding.get(request_id)
+        if entry is None or entry.kind != "goal":
+            log.debug("cancel of goal %r that is not active here: not sent", request_id)
+            return
+        try:
+            await connection.send(encode_request(CancelActionGoal(action, request_id)))
+        except ConnectionClosed as error:
+            raise BridgeUnavailable(f"connection lost while cancelling goal {request_id!r}") from error
+
+    def _open_connection(self, what: str) -> ClientConnection:
+        if self._stop_reason is not None:
+            raise self._stopped_error()
+        connection = self._connection
+        if connection is None or not self._connected.is_set():
+            raise BridgeUnavailable(f"{what}: not connected to {self.url}")
+        return connection
+
+    async def _send_call(
+        self, request: CallService | SendActionGoal, entry: _Outstanding, expires_s: float | None
+    ) -> None:
+        connection = self._open_connection(f"cannot send {entry.kind} {entry.name!r}")
+        if request.id in self._outstanding:
+            raise ValueError(f"request id {request.id!r} is already outstanding: ids must be unique")
+        if len(self._outstanding) >= self.options.max_outstanding_calls:
+            raise TooManyCalls(
+                f"{len(self._outstanding)} calls and goals already outstanding "
+                f"(max_outstanding_calls {self.options.max_outstanding_calls})"
+            )
+        frame = encode_request(request)  # ValueError for NaN/inf
+        parse_request(frame)  # what the bridge would refuse (a ProtocolError, a ValueError), said now
+        if expires_s is not None:
+            loop = asyncio.get_running_loop()
+            entry.expiry = loop.call_later(expires_s, self._expire, request.id, entry, expires_s)
+        self._outstanding[request.id] = entry  # before sending: the reply may come at once
+        try:
+            await connection.send(frame)
+        except ConnectionClosed as error:
+            if self._outstanding.get(request.id) is not entry:
+                return  # the drop already failed it: that delivery is its one answer
+            self._forget_call(request.id)
+            raise BridgeUnavailable(f"connection lost while sending {entry.kind} {entry.name!r}") from error
+
+    def _forget_call(self, request_id: RequestId) -> _Outstanding | None:
+        entry = self._outstanding.pop(request_id, None)
+        if entry is not None and entry.expiry is not None:
+            entry.expiry.cancel()
+        return entry
+
+    def _expire(self, request_id: RequestId, entry: _Outstanding, after_s: float) -> None:
+        if self._outstanding.get(request_id) is not entry:
+            return
+        self._forget_call(request_id)
+        self._deliver_failure(request_id, entry, f"no reply from the bridge within {after_s:g} s", "timeout")
+
+    def _deliver_failure(self, request_id: RequestId, entry: _Outstanding, error: str, code: str) -> None:
+        if entry.kind == "service":
+            self._inbox.put_reply(ServiceReply(request_id, entry.name, False, None, error, code))
+        else:
+            self._inbox.put_reply(GoalResult(request_id, entry.name, False, 0, None, error, code))
+        self._arrived.set()
+
+    def _fail_outstanding(self, reason: str) -> None:
+        """The connection dropped: the bridge cancels our goals and forgets our calls, so each gets
+        its failure now; nobody waits for ever."""
+        for request_id in list(self._outstanding):
+            entry = self._forget_call(request_id)
+            if entry is not None:
+                self._deliver_failure(request_id, entry, reason, "disconnected")
 
     async def receive(self, timeout: float | None = None) -> Delivery:
         """The next delivery (commands, then state, then audio/text/video). Raises TimeoutError
@@ -306,6 +438,8 @@ class BridgeClient:
             protocol_errors=self._protocol_errors,
             callback_errors=self._callback_errors,
             internal_errors=self._internal_errors,
+            outstanding_calls=len(self._outstanding),
+            feedback_dropped=self._inbox.feedback_dropped,
             queued=self._inbox.queued(),
             dropped=dict(self._inbox.dropped),
             bridge_dropped=dict(self._bridge_dropped),
@@ -368,8 +502,25 @@ class BridgeClient:
             topic = parsed.topic
             self._inbox.put(Received(topic, self._classes.class_of(topic), parsed.msg, time.monotonic()))
             self._arrived.set()
-        else:
+        elif isinstance(parsed, StatusFrame):
             self._handle_status(parsed)
+        else:
+            self._handle_reply(parsed)
+
+    def _handle_reply(self, reply: ServiceReply | GoalFeedback | GoalResult) -> None:
+        kind = "service" if isinstance(reply, ServiceReply) else "goal"
+        entry = self._outstanding.get(reply.id)
+        if entry is None or entry.kind != kind:
+            self._protocol_error(
+                f"{type(reply).__name__} for id {reply.id!r}, which has no {kind} outstanding"
+            )
+            return
+        if isinstance(reply, GoalFeedback):
+            self._inbox.put_feedback(reply)
+        else:
+            self._forget_call(reply.id)
+            self._inbox.put_reply(reply)
+        self._arrived.set()
 
     def _handle_status(self, frame: StatusFrame) -> None:
         status = frame.status
@@ -378,6 +529,11 @@ class BridgeClient:
         self.statuses.append(status)
         if status.level != "info":
             log.warning("bridge %s [%s]: %s", status.level, status.code[:40] or "-", status.msg[:300])
+        if status.code == "not_active" and status.id is not None:
+            entry = self._outstanding.get(status.id)
+            if entry is not None and entry.kind == "goal":  # the bridge has no such goal: it never ran
+                self._forget_call(status.id)
+                self._deliver_failure(status.id, entry, status.msg, "not_active")
         reason = _LOSS_REASONS.get(status.code)
         if reason is not None:
             now = time.monotonic()
@@ -447,6 +603,7 @@ class BridgeClient:
             finally:
                 self._connection = None
                 self._connected.clear()
+                self._fail_outstanding("connection to the bridge lost")
                 if self._stop_reason is None:
                     self._report_disconnection()
         if self._stop_reason is None:  # a clean close by the bridge (restart, shutdown) is a loss too

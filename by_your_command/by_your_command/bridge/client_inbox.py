@@ -8,6 +8,8 @@
   end marker stay in order with typed text.
 - video: latest frame per topic, served in arrival order with audio and text.
 Loss events (`Lost`) go to the lane of their class, in order with the messages around them.
+Call replies and goal results share the command lane (never dropped); goal feedback is latest-wins
+per goal id, served after state, and a goal's pending feedback goes when its result arrives.
 """
 
 from __future__ import annotations
@@ -16,9 +18,18 @@ import logging
 from collections import OrderedDict, deque
 from dataclasses import dataclass, replace
 
-from by_your_command.bridge.client_messages import Delivery, Lost, Received, zero_per_class
+from by_your_command.bridge.client_messages import (
+    Delivery,
+    GoalFeedback,
+    GoalResult,
+    Lost,
+    Received,
+    ServiceReply,
+    zero_per_class,
+)
 from by_your_command.bridge.client_topics import base_name
 from by_your_command.bridge.config import TopicClass
+from by_your_command.bridge.protocol import RequestId
 
 log = logging.getLogger(__name__)
 
@@ -53,9 +64,22 @@ class Inbox:
         self._state_keys: dict[str, int] = {}
         self._stream: deque[tuple[int, Delivery]] = deque()  # (arrival number, delivery)
         self._video: OrderedDict[str, tuple[int, Delivery]] = OrderedDict()
+        self._feedback: OrderedDict[RequestId, GoalFeedback] = OrderedDict()
         self._arrivals = 0
         self._queued = zero_per_class()
         self.dropped = zero_per_class()  # replaced before being read (state, video)
+        self.feedback_dropped = 0  # goal feedback replaced by newer feedback or by the result
+
+    def put_reply(self, item: ServiceReply | GoalResult) -> None:
+        """A call's reply or a goal's result: never dropped (bounded by the calls outstanding)."""
+        self._command.append(item)
+        if isinstance(item, GoalResult) and self._feedback.pop(item.id, None) is not None:
+            self.feedback_dropped += 1  # the result says more than a progress report would
+
+    def put_feedback(self, item: GoalFeedback) -> None:
+        if self._feedback.pop(item.id, None) is not None:
+            self.feedback_dropped += 1
+        self._feedback[item.id] = item
 
     # --- in ---------------------------------------------------------------------------------
 
@@ -138,13 +162,16 @@ class Inbox:
             key, item = self._state.popitem(last=False)
             if key[1] is not _LOSS_KEY:
                 self._state_keys[key[0]] -= 1
+        elif self._feedback:
+            return self._feedback.popitem(last=False)[1]
         elif self._video and (not self._stream or next(iter(self._video.values()))[0] < self._stream[0][0]):
             item = self._video.popitem(last=False)[1][1]
         elif self._stream:
             item = self._stream.popleft()[1]
         else:
             return None
-        self._queued[item.topic_class] -= 1
+        if isinstance(item, (Received, Lost)):
+            self._queued[item.topic_class] -= 1
         return item
 
     @property
@@ -159,4 +186,6 @@ class Inbox:
         return dict(self._queued)
 
     def __len__(self) -> int:
-        return len(self._command) + len(self._state) + len(self._stream) + len(self._video)
+        return (
+            len(self._command) + len(self._state) + len(self._stream) + len(self._video) + len(self._feedback)
+        )

@@ -6,6 +6,24 @@ from dataclasses import dataclass
 from typing import Any
 
 from by_your_command.bridge.config import TOPIC_CLASSES, TopicClass
+from by_your_command.bridge.protocol import GoalFeedback, GoalResult, ServiceReply
+
+__all__ = [
+    "BridgeRefused",
+    "BridgeUnavailable",
+    "ClientClosed",
+    "ClientFailed",
+    "ClientHealth",
+    "ClientStopped",
+    "Delivery",
+    "GoalFeedback",
+    "GoalResult",
+    "Lost",
+    "Received",
+    "ServiceReply",
+    "TooManyCalls",
+    "zero_per_class",
+]
 
 # The order receive() serves the classes in: commands first, then state, then the data streams.
 # Audio, text and video share one lane in arrival order (a frame belongs next to the speech it shows).
@@ -34,7 +52,10 @@ class Lost:
     received_at: float
 
 
-Delivery = Received | Lost
+# Calls (protocol.md "Services and actions"): ServiceReply and GoalResult are never dropped and come
+# once per call (ok False, code "disconnected", when the connection drops first); GoalFeedback is
+# latest-wins per goal id.
+Delivery = Received | Lost | ServiceReply | GoalFeedback | GoalResult
 
 
 @dataclass(frozen=True)
@@ -56,6 +77,8 @@ class ClientHealth:
     reading_paused: bool  # back-pressure now: the command or audio/text lane is full
     reading_pauses: int  # how often reading paused (the consumer fell behind)
     last_error: str
+    outstanding_calls: int = 0  # service calls and goals sent and not yet answered
+    feedback_dropped: int = 0  # goal feedback replaced here by newer feedback or the result, unread
 
     @property
     def errors(self) -> int:
@@ -80,6 +103,10 @@ class ClientFailed(ClientStopped):
 
 class BridgeUnavailable(ConnectionError):
     """The bridge is not connected right now (the client keeps trying in the background)."""
+
+
+class TooManyCalls(RuntimeError):
+    """More service calls and goals outstanding than ClientOptions.max_outstanding_calls."""
 
 
 class BridgeRefused(ClientStopped):

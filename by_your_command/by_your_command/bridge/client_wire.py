@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from by_your_command.bridge.protocol import Status
+from by_your_command.bridge.protocol import REPLY_OPS, CallReply, ProtocolError, Status, parse_call_reply
 
 # A count above this is not a count (JSON numbers beyond 2**53 are not even exact in JavaScript).
 MAX_COUNT = 2**53
@@ -33,7 +33,7 @@ class StatusFrame:
     defects: tuple[str, ...] = ()  # fields that were malformed and left out (the rest is usable)
 
 
-def parse_server_frame(text: str | bytes) -> PublishFrame | StatusFrame:
+def parse_server_frame(text: str | bytes) -> PublishFrame | StatusFrame | CallReply:
     try:
         data = json.loads(text)
     except (UnicodeDecodeError, ValueError, RecursionError) as error:
@@ -50,6 +50,11 @@ def parse_server_frame(text: str | bytes) -> PublishFrame | StatusFrame:
         return PublishFrame(topic, msg)
     if op == "status":
         return _status(data)
+    if op in REPLY_OPS:
+        try:
+            return parse_call_reply(data)
+        except ProtocolError as error:
+            raise ServerFrameError(_short(str(error), 200)) from None
     raise ServerFrameError(f"unexpected op {_short(op)!r} from the bridge")
 
 

@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import yaml
 
-from by_your_command.bridge.protocol import normalize_type
+from by_your_command.bridge.calls import ActionRule, ServiceRule
+from by_your_command.bridge.names import resolve_topic
+from by_your_command.bridge.protocol import (
+    MAX_CALL_TIMEOUT_S,
+    InterfaceKind,
+    normalize_interface,
+    normalize_type,
+)
 
 TopicClass = Literal["audio", "video", "command", "state", "text"]
 QosName = Literal["stream", "reliable", "latched"]
@@ -26,6 +34,10 @@ class BridgeParams:
     )
     config_path: str = field(
         default="", metadata={"help": "allow-list YAML; empty = the installed config/bridge.yaml"}
+    )
+    tools_path: str = field(
+        default="",
+        metadata={"help": "robot tools YAML (docs/tools.md); empty = the installed config/tools.yaml"},
     )
     max_message_bytes: int = field(default=1_048_576, metadata={"help": "largest accepted inbound frame"})
     max_clients: int = field(default=16, metadata={"help": "connections beyond this are refused"})
@@ -69,6 +81,12 @@ class BridgeParams:
     refusal_logs_per_s: float = field(
         default=2.0, metadata={"help": "refusal log lines per second (burst 20), the rest are counted"}
     )
+    max_pending_calls: int = field(
+        default=16, metadata={"help": "per client: service calls awaiting their response; more are refused"}
+    )
+    max_active_goals: int = field(
+        default=8, metadata={"help": "per client: action goals not yet ended; more are refused"}
+    )
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -84,6 +102,8 @@ class BridgeParams:
             "pending_publish_messages",
             "pending_publish_bytes",
             "audio_history_depth",
+            "max_pending_calls",
+            "max_active_goals",
         ):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
@@ -110,14 +130,56 @@ class TopicRule:
         return self.topic_class == "video"
 
 
+class ConfigError(ValueError):
+    pass
+
+
 @dataclass(frozen=True)
 class AllowLists:
     subscribe: tuple[TopicRule, ...] = ()  # ROS → clients
     publish: tuple[TopicRule, ...] = ()  # clients → ROS
+    services: tuple[ServiceRule, ...] = ()  # clients call them
+    actions: tuple[ActionRule, ...] = ()  # clients send goals to them
+
+    def merged(self, other: AllowLists) -> AllowLists:
+        """The union (bridge.yaml + the tools' interfaces). The same name twice must mean the same
+        thing: a different type, class or QoS is a ConfigError; for calls the longer timeout wins
+        (a tool that declares a long service keeps it)."""
+        return AllowLists(
+            _merge_topics(self.subscribe, other.subscribe, "subscribe"),
+            _merge_topics(self.publish, other.publish, "publish"),
+            _merge_calls(self.services, other.services, "services"),
+            _merge_calls(self.actions, other.actions, "actions"),
+        )
 
 
-class ConfigError(ValueError):
-    pass
+def _merge_topics(
+    ours: tuple[TopicRule, ...], theirs: tuple[TopicRule, ...], section: str
+) -> tuple[TopicRule, ...]:
+    by_name = {rule.topic: rule for rule in ours}
+    for rule in theirs:
+        known = by_name.setdefault(rule.topic, rule)
+        if known != rule:
+            raise ConfigError(
+                f"'{section}' lists {rule.topic!r} twice with different settings: {known} and {rule}"
+            )
+    return tuple(by_name.values())
+
+
+_CallRule = TypeVar("_CallRule", ServiceRule, ActionRule)
+
+
+def _merge_calls(
+    ours: tuple[_CallRule, ...], theirs: tuple[_CallRule, ...], section: str
+) -> tuple[_CallRule, ...]:
+    by_name = {rule.name: rule for rule in ours}
+    for rule in theirs:
+        known = by_name.setdefault(rule.name, rule)
+        if known.type != rule.type:
+            raise ConfigError(f"'{section}' lists {rule.name!r} with two types: {known.type} and {rule.type}")
+        if rule.timeout_s > known.timeout_s:
+            by_name[rule.name] = rule
+    return tuple(by_name.values())
 
 
 def _default_class(type_name: str) -> TopicClass:
@@ -152,26 +214,74 @@ def _rule(entry: Any, section: str, index: int) -> TopicRule:
     return TopicRule(topic, normalized, topic_class, qos)
 
 
+def _call_rule(entry: Any, section: str, index: int) -> tuple[str, str, float]:
+    """(name, normalised type, timeout_s) of one `services:` or `actions:` entry."""
+    where = f"{section}[{index}]"
+    kind: InterfaceKind = "srv" if section == "services" else "action"
+    if not isinstance(entry, dict):
+        raise ConfigError(f"{where}: expected a mapping with 'name' and 'type'")
+    unknown = set(entry) - {"name", "type", "timeout_s"}
+    if unknown:
+        raise ConfigError(f"{where}: unknown keys {sorted(unknown)} (expected name, type, timeout_s)")
+    name, type_name = entry.get("name"), entry.get("type")
+    if not isinstance(name, str) or not name or not isinstance(type_name, str):
+        raise ConfigError(f"{where}: 'name' and 'type' must be non-empty strings")
+    try:
+        resolve_topic(name, "/")  # same rules as a topic name
+        normalized = normalize_interface(type_name, kind)
+    except ValueError as error:
+        raise ConfigError(f"{where}: {error}") from None
+    timeout = entry.get("timeout_s", 10.0)
+    if (
+        isinstance(timeout, bool)
+        or not isinstance(timeout, (int, float))
+        or not math.isfinite(timeout)
+        or not 0 < timeout <= MAX_CALL_TIMEOUT_S
+    ):
+        raise ConfigError(
+            f"{where}: timeout_s must be a number of seconds in (0, {MAX_CALL_TIMEOUT_S:g}], got {timeout!r}"
+        )
+    return name, normalized, float(timeout)
+
+
+SECTIONS = ("subscribe", "publish", "services", "actions")
+
+
+def _section(data: dict[str, Any], section: str) -> list[Any]:
+    entries = data.get(section) or []
+    if not isinstance(entries, list):
+        raise ConfigError(f"'{section}' must be a list")
+    return entries
+
+
+def _no_duplicates(section: str, names: list[str]) -> None:
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise ConfigError(f"'{section}' lists {duplicates} more than once")
+
+
 def parse_allow_lists(data: Any) -> AllowLists:
     if data is None:
         return AllowLists()
     if not isinstance(data, dict):
-        raise ConfigError("bridge config must be a mapping with 'subscribe' and/or 'publish' lists")
-    unknown = set(data) - {"subscribe", "publish"}
+        raise ConfigError(
+            "bridge config must be a mapping with 'subscribe', 'publish', 'services' or 'actions' lists"
+        )
+    unknown = set(data) - set(SECTIONS)
     if unknown:
-        raise ConfigError(f"unknown top-level keys {sorted(unknown)} (expected subscribe, publish)")
+        raise ConfigError(f"unknown top-level keys {sorted(unknown)} (expected {', '.join(SECTIONS)})")
     sections: dict[str, tuple[TopicRule, ...]] = {}
     for section in ("subscribe", "publish"):
-        entries = data.get(section) or []
-        if not isinstance(entries, list):
-            raise ConfigError(f"'{section}' must be a list")
-        rules = tuple(_rule(entry, section, index) for index, entry in enumerate(entries))
-        names = [rule.topic for rule in rules]
-        duplicates = sorted({name for name in names if names.count(name) > 1})
-        if duplicates:
-            raise ConfigError(f"'{section}' lists {duplicates} more than once")
+        rules = tuple(_rule(entry, section, index) for index, entry in enumerate(_section(data, section)))
+        _no_duplicates(section, [rule.topic for rule in rules])
         sections[section] = rules
-    return AllowLists(sections["subscribe"], sections["publish"])
+    services = tuple(
+        ServiceRule(*_call_rule(e, "services", i)) for i, e in enumerate(_section(data, "services"))
+    )
+    actions = tuple(ActionRule(*_call_rule(e, "actions", i)) for i, e in enumerate(_section(data, "actions")))
+    _no_duplicates("services", [rule.name for rule in services])
+    _no_duplicates("actions", [rule.name for rule in actions])
+    return AllowLists(sections["subscribe"], sections["publish"], services, actions)
 
 
 def load_allow_lists(path: Path) -> AllowLists:

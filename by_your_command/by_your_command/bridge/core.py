@@ -3,6 +3,9 @@
 `BridgeCore` validates every request against the allow-lists, keeps per-client state and routes
 ROS messages (already JSON-encoded once) into each subscriber's bounded send queue. It talks to
 ROS only through the small `RosGraph` port, so tests drive it with a fake graph.
+Service calls and action goals go through the same port; their outcomes come back as callbacks
+and are queued for the client that asked (never dropped; the number a client may have
+outstanding is bounded). Goals of a client that leaves are cancelled: nobody is left to stop them.
 All methods run on the asyncio loop's thread, except `_prepare` (parse + convert, pure), which
 runs on a worker thread for frames larger than `inline_convert_bytes`: one client's 1 MB publish
 must not stall every other client's audio. Each client has at most one frame on a worker at a
@@ -20,22 +23,39 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, fields
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
-from by_your_command.bridge.config import AllowLists, BridgeParams, TopicRule
+from by_your_command.bridge.calls import (
+    GOAL_ABORTED,
+    GOAL_CANCELED,
+    GOAL_SUCCEEDED,
+    GOAL_UNKNOWN,
+    ActionRule,
+    CallOutcome,
+    ServiceRule,
+)
+from by_your_command.bridge.config import AllowLists, BridgeParams, ConfigError, TopicRule
 from by_your_command.bridge.flow import LogLimiter, SendQueue, TokenBucket
 from by_your_command.bridge.names import resolve_topic
 from by_your_command.bridge.protocol import (
     Advertise,
+    CallService,
+    CancelActionGoal,
     ProtocolError,
     Publish,
     Request,
     RequestId,
+    SendActionGoal,
     Status,
     Subscribe,
     Unadvertise,
     Unsubscribe,
+    encode_action_failure,
+    encode_action_feedback,
+    encode_action_result,
     encode_publish,
+    encode_service_failure,
+    encode_service_response,
     encode_status,
     parse_request,
     preview,
@@ -77,6 +97,35 @@ class RosGraph(Protocol):
     def publish(self, rule: TopicRule, full_topic: str, message: Any) -> None:
         """Publish what `convert` returned; raise PublishError if ROS refuses it."""
 
+    def convert_call(self, type_name: str, part: Literal["request", "goal"], args: dict[str, Any]) -> Any:
+        """JSON args → the service Request / action Goal message of `type_name`; raise PublishError
+        (client-facing text) on bad content. May run on worker threads, like `convert`."""
+
+    def call_service(
+        self,
+        rule: ServiceRule,
+        full_name: str,
+        request: Any,
+        timeout_s: float,
+        done: Callable[[CallOutcome], None],
+    ) -> None:
+        """Call the service; `done` exactly once, on the loop thread (response, failure or timeout)."""
+
+    def send_goal(
+        self,
+        rule: ActionRule,
+        full_name: str,
+        goal: Any,
+        token: int,
+        feedback: Callable[[str], None],
+        done: Callable[[CallOutcome], None],
+    ) -> None:
+        """Send the goal; `feedback` with each feedback's fields as JSON object text, `done` exactly
+        once when it ends (result, rejection, no server...), both on the loop thread."""
+
+    def cancel_goal(self, token: int) -> None:
+        """Cancel the goal sent with `token` (idempotent); its `done` still comes once."""
+
 
 @dataclass
 class _Subscription:
@@ -86,6 +135,22 @@ class _Subscription:
     queue_length: int
     last_sent: float = float("-inf")
     throttled: int = 0
+
+
+@dataclass
+class _Goal:
+    token: int  # the core's handle for the graph (client ids are only unique per client)
+    session: ClientSession
+    request_id: RequestId
+    action: str  # as the client wrote it: frames carry it back unchanged
+    full_name: str
+    feedback: bool
+    cancel_reason: str = ""
+
+    @property
+    def key(self) -> str:
+        """Its feedback's key in the client's send queue (latest wins per goal)."""
+        return f"goal feedback {self.token}"
 
 
 @dataclass
@@ -106,6 +171,10 @@ class ClientSession:
     pending_bytes: int = 0
     converting: bool = False
     capacity: asyncio.Event = field(default_factory=asyncio.Event)
+    pending_calls: int = 0  # service calls awaiting their outcome
+    goals: dict[RequestId, _Goal] = field(default_factory=dict)  # active goals by the client's id
+    service_calls: int = 0
+    goals_sent: int = 0
 
 
 @dataclass(frozen=True)
@@ -123,6 +192,11 @@ class ClientStats:
     lost: int = 0
     status_suppressed: int = 0
     pending_publishes: int = 0
+    pending_calls: int = 0
+    active_goals: int = 0
+    service_calls: int = 0
+    goals_sent: int = 0
+    feedback_dropped: int = 0
 
 
 @dataclass
@@ -138,14 +212,26 @@ class BridgeTotals:
     lost_upstream: int = 0  # before the bridge: ROS history overwritten (publication sequence gaps)
     status_suppressed: int = 0  # refusals coalesced into a `suppressed` summary
     internal_errors: int = 0
+    service_calls: int = 0  # calls passed to ROS (refused ones are only in `rejected`)
+    service_failures: int = 0  # of those: no server, timeout, failed in ROS
+    goals_sent: int = 0
+    goals_active: int = 0  # now, not cumulative
+    goals_succeeded: int = 0
+    goals_failed: int = 0  # rejected, aborted, no server, timeout...
+    goals_cancelled: int = 0
+    feedback_dropped: int = 0  # latest-wins: replaced by newer feedback or the result, or no room
+    replies_discarded: int = 0  # outcomes of calls and goals whose client had left
 
     def add_session(self, session: ClientSession) -> None:
+        # Call and goal counters are counted by the core as they happen (outcomes may come after
+        # the client left), except feedback drops, which happen in the client's queue.
         self.received += session.received
         self.rejected += session.rejected
         self.sent_messages += session.sent_messages
         self.sent_bytes += session.sent_bytes
         self.dropped += sum(session.queue.dropped.values())
         self.status_suppressed += session.queue.control_overflow
+        self.feedback_dropped += session.queue.feedback_dropped
 
 
 class BridgeCore:
@@ -164,6 +250,10 @@ class BridgeCore:
         self._clock = clock
         self._subscribable = {resolve_topic(rule.topic, namespace): rule for rule in allow.subscribe}
         self._publishable = {resolve_topic(rule.topic, namespace): rule for rule in allow.publish}
+        self._services: dict[str, ServiceRule] = _by_full_name(allow.services, namespace, "services")
+        self._actions: dict[str, ActionRule] = _by_full_name(allow.actions, namespace, "actions")
+        self._goals: dict[int, _Goal] = {}  # every active goal, by token
+        self._tokens = itertools.count(1)
         self._sessions: dict[int, ClientSession] = {}
         self._subscribers: dict[str, list[ClientSession]] = {}
         self._ids = itertools.count(1)
@@ -203,6 +293,8 @@ class BridgeCore:
         session.closed = True
         for full_topic in list(session.subscriptions):
             self._drop_subscription(session, full_topic)
+        for goal in list(session.goals.values()):  # nobody is left to stop them
+            self._cancel(goal, "the client disconnected")
         self._sessions.pop(session.id, None)
         # Frames already accepted (a last command before hanging up) are still published; what is
         # counted from here on belongs to the totals.
@@ -314,8 +406,11 @@ class BridgeCore:
         self._update_capacity(session)
 
     def _prepare(self, frame: str | bytes) -> tuple[Request, Any]:
-        """Parse and, for a publish, convert. Pure (reads only immutable state): runs on workers too."""
+        """Parse and, for a publish, a call or a goal, convert. Pure (reads only immutable state):
+        runs on workers too."""
         request = parse_request(frame, self.params.max_json_depth)
+        if isinstance(request, (CallService, SendActionGoal)):
+            return request, self._convert_call(request)
         if not isinstance(request, Publish):
             return request, None
         rule, _ = self._publish_rule(request.topic, request.id)
@@ -333,23 +428,40 @@ class BridgeCore:
         try:
             if isinstance(request, Publish):
                 self._publish(session, request, converted)  # even if the client hung up meanwhile
-            elif not session.closed:  # a subscription for a departed client would leak
-                self._dispatch(session, request)
+            elif not session.closed:  # a subscription, call or goal for a departed client would leak
+                self._dispatch(session, request, converted)
         except Exception as error:  # noqa: BLE001 - every outcome becomes a reply, never a dead task
-            self._refuse_error(session, error)
+            self._refuse_error(session, error, request)
 
-    def _refuse_error(self, session: ClientSession, error: BaseException) -> None:
+    def _refuse_error(
+        self, session: ClientSession, error: BaseException, request: Request | None = None
+    ) -> None:
         if isinstance(error, ProtocolError):
-            self._refuse(session, str(error), "bad_request", error.request_id, topic="")
+            call = None
+            if error.op in _ANSWERED_OPS and error.request_id is not None and error.target:
+                call = _CallRef(error.op, error.target, error.request_id)
+            self._refuse(session, str(error), "bad_request", error.request_id, call=call)
         elif isinstance(error, _Refusal):
-            self._refuse(session, error.message, error.code, error.request_id, error.topic, error.level)
+            self._refuse(
+                session, error.message, error.code, error.request_id, error.topic, error.level, error.call
+            )
         else:  # a bug: say so (once per burst in the log), keep the connection and the bridge alive
             self._closed_totals.internal_errors += 1
             log.error("client %d: internal error handling a request", session.id, exc_info=error)
-            self._refuse(session, f"internal error: {type(error).__name__}", "internal_error")
+            call = _call_ref(request) if isinstance(request, (CallService, SendActionGoal)) else None
+            request_id = None if call is None else call.request_id
+            self._refuse(
+                session, f"internal error: {type(error).__name__}", "internal_error", request_id, call=call
+            )
 
-    def _dispatch(self, session: ClientSession, request: Request) -> None:
-        if isinstance(request, Subscribe):
+    def _dispatch(self, session: ClientSession, request: Request, converted: Any) -> None:
+        if isinstance(request, CallService):
+            self._call_service(session, request, converted)
+        elif isinstance(request, SendActionGoal):
+            self._send_goal(session, request, converted)
+        elif isinstance(request, CancelActionGoal):
+            self._cancel_by_client(session, request)
+        elif isinstance(request, Subscribe):
             self._subscribe(session, request)
         elif isinstance(request, Unsubscribe):
             full = self._resolve(request.topic, request.id)
@@ -457,7 +569,10 @@ class BridgeCore:
         request_id: RequestId | None = None,
         topic: str = "",
         level: str = "error",
+        call: _CallRef | None = None,
     ) -> None:
+        """A status to this client only. For a refused call or goal (`call`), its failing reply follows
+        in the same bounded lane: clients such as roslibpy only see a call fail through it."""
         if session.closed:
             self._closed_totals.rejected += 1  # its counters were already added to the totals
         else:
@@ -477,6 +592,255 @@ class BridgeCore:
             )
         status = Status("warning" if level == "warning" else "error", message, request_id, code, topic)
         session.queue.put_control(encode_status(status), code)
+        if call is not None:
+            answer_code = "bad_args" if code == "bad_request" else code
+            session.queue.put_control(_failure_frame(call, message, answer_code), code)
+
+    # --- service calls and action goals ------------------------------------------------------
+
+    def _convert_call(self, request: CallService | SendActionGoal) -> Any:
+        """Allow-list, type and content checks of a call or goal; runs on workers for large ones."""
+        if isinstance(request, CallService):
+            rule: ServiceRule | ActionRule = self._service_rule(request)[0]
+            what = f"service {preview(request.service)}"
+        else:
+            rule = self._action_rule(request)[0]
+            what = f"action {preview(request.action)}"
+        try:
+            return self.graph.convert_call(
+                rule.type, "request" if isinstance(request, CallService) else "goal", request.args
+            )
+        except PublishError as error:
+            raise _Refusal(
+                f"bad arguments for {what} ({rule.type}): {error}",
+                "bad_args",
+                request.id,
+                "",
+                call=_call_ref(request),
+            ) from None
+
+    def _service_rule(self, request: CallService) -> tuple[ServiceRule, str]:
+        full = self._resolve_call(request.service, request)
+        rule = self._services.get(full)
+        if rule is None:
+            raise _Refusal(
+                f"service {preview(request.service)} is not in the services allow-list",
+                "not_allowed",
+                request.id,
+                "",
+                call=_call_ref(request),
+            )
+        if request.type is not None and request.type != rule.type:
+            raise _Refusal(
+                f"service {preview(request.service)} has type {rule.type}, not {request.type}",
+                "wrong_type",
+                request.id,
+                "",
+                call=_call_ref(request),
+            )
+        return rule, full
+
+    def _action_rule(self, request: SendActionGoal) -> tuple[ActionRule, str]:
+        full = self._resolve_call(request.action, request)
+        rule = self._actions.get(full)
+        if rule is None:
+            raise _Refusal(
+                f"action {preview(request.action)} is not in the actions allow-list",
+                "not_allowed",
+                request.id,
+                "",
+                call=_call_ref(request),
+            )
+        if request.action_type != rule.type:
+            raise _Refusal(
+                f"action {preview(request.action)} has type {rule.type}, not {request.action_type}",
+                "wrong_type",
+                request.id,
+                "",
+                call=_call_ref(request),
+            )
+        return rule, full
+
+    def _resolve_call(self, name: str, request: CallService | SendActionGoal | CancelActionGoal) -> str:
+        try:
+            return resolve_topic(name, self.namespace)
+        except ValueError as error:
+            call = None if isinstance(request, CancelActionGoal) else _call_ref(request)
+            raise _Refusal(str(error), "bad_request", request.id, "", call=call) from None
+
+    def _call_service(self, session: ClientSession, request: CallService, message: Any) -> None:
+        rule, full = self._service_rule(request)
+        if session.pending_calls >= self.params.max_pending_calls:
+            raise _Refusal(
+                f"already {session.pending_calls} service calls awaiting their response "
+                f"(max_pending_calls {self.params.max_pending_calls})",
+                "too_many",
+                request.id,
+                "",
+                call=_call_ref(request),
+            )
+        timeout = rule.timeout_s if request.timeout_s is None else min(rule.timeout_s, request.timeout_s)
+        finished = False
+
+        def done(outcome: CallOutcome) -> None:
+            nonlocal finished
+            if finished:  # the graph promises once; a second one must not unbalance the count
+                log.error("service %s: a second outcome for one call was ignored", full)
+                return
+            finished = True
+            self._service_done(session, request, outcome)
+
+        session.pending_calls += 1
+        session.service_calls += 1
+        self._closed_totals.service_calls += 1
+        try:
+            self.graph.call_service(rule, full, message, timeout, done)
+        except Exception:
+            if not finished:
+                finished = True
+                session.pending_calls -= 1
+            raise
+
+    def _service_done(self, session: ClientSession, request: CallService, outcome: CallOutcome) -> None:
+        session.pending_calls -= 1
+        if not outcome.ok:
+            self._closed_totals.service_failures += 1
+        if session.closed:
+            self._closed_totals.replies_discarded += 1  # nobody to tell; counted, not sent
+            return
+        if outcome.ok:
+            frame = encode_service_response(request.service, request.id, outcome.values_json)
+        else:
+            error = outcome.error or "the service call failed"
+            frame = encode_service_failure(
+                request.service, request.id, error, outcome.code or "internal_error"
+            )
+        self._put_reply(session, frame, _call_ref(request))
+
+    def _send_goal(self, session: ClientSession, request: SendActionGoal, message: Any) -> None:
+        rule, full = self._action_rule(request)
+        if request.id in session.goals:
+            raise _Refusal(
+                f"a goal with id {_id_text(request.id)} is still active: ids must be unique",
+                "bad_request",
+                request.id,
+                "",
+                call=_call_ref(request),
+            )
+        if len(session.goals) >= self.params.max_active_goals:
+            raise _Refusal(
+                f"already {len(session.goals)} active goals "
+                f"(max_active_goals {self.params.max_active_goals})",
+                "too_many",
+                request.id,
+                "",
+                call=_call_ref(request),
+            )
+        goal = _Goal(next(self._tokens), session, request.id, request.action, full, request.feedback)
+        session.goals[request.id] = goal  # before send_goal: its `done` may come at once
+        self._goals[goal.token] = goal
+        session.goals_sent += 1
+        self._closed_totals.goals_sent += 1
+        try:
+            self.graph.send_goal(
+                rule,
+                full,
+                message,
+                goal.token,
+                lambda values_json: self._goal_feedback(goal, values_json),
+                lambda outcome: self._goal_done(goal, outcome),
+            )
+        except Exception:
+            self._forget_goal(goal)
+            raise
+
+    def _goal_feedback(self, goal: _Goal, values_json: str) -> None:
+        session = goal.session
+        if not goal.feedback or session.closed or goal.token not in self._goals:
+            return
+        session.queue.put_feedback(
+            encode_action_feedback(goal.action, goal.request_id, values_json), goal.key
+        )
+
+    def _goal_done(self, goal: _Goal, outcome: CallOutcome) -> None:
+        if not self._forget_goal(goal):
+            log.error("action %s: a second outcome for one goal was ignored", goal.full_name)
+            return
+        if outcome.ok and outcome.status == GOAL_SUCCEEDED:
+            self._closed_totals.goals_succeeded += 1
+        elif outcome.status == GOAL_CANCELED or outcome.code == "cancelled":
+            self._closed_totals.goals_cancelled += 1
+        else:
+            self._closed_totals.goals_failed += 1
+        session = goal.session
+        session.queue.discard_feedback(goal.key)  # never after the result
+        if session.closed:
+            self._closed_totals.replies_discarded += 1
+            return
+        if outcome.ok:
+            frame = encode_action_result(goal.action, goal.request_id, outcome.status, outcome.values_json)
+        else:
+            error = outcome.error or "the goal failed"
+            if goal.cancel_reason:
+                error = f"{error} ({goal.cancel_reason})"
+            status = outcome.status
+            if status == GOAL_UNKNOWN and outcome.code != "rejected":
+                status = GOAL_ABORTED  # only a rejected goal never had a status
+            frame = encode_action_failure(
+                goal.action, goal.request_id, status, error, outcome.code or "internal_error"
+            )
+        self._put_reply(session, frame, _CallRef("send_action_goal", goal.action, goal.request_id))
+
+    def _forget_goal(self, goal: _Goal) -> bool:
+        """False when it had already ended."""
+        if self._goals.pop(goal.token, None) is None:
+            return False
+        if goal.session.goals.get(goal.request_id) is goal:
+            del goal.session.goals[goal.request_id]
+        return True
+
+    def _cancel_by_client(self, session: ClientSession, request: CancelActionGoal) -> None:
+        full = self._resolve_call(request.action, request)
+        goal = session.goals.get(request.id)
+        if goal is None or goal.full_name != full:
+            raise _Refusal(
+                f"no active goal with id {_id_text(request.id)} on {preview(request.action)} "
+                "(it ended already, or was never accepted)",
+                "not_active",
+                request.id,
+                "",
+                level="warning",
+            )
+        self._cancel(goal, "cancelled by the client")
+
+    def _cancel(self, goal: _Goal, reason: str) -> bool:
+        """Ask the graph to cancel; its `done` reports the end. False if the graph failed."""
+        goal.cancel_reason = goal.cancel_reason or reason
+        try:
+            self.graph.cancel_goal(goal.token)
+        except Exception:  # noqa: BLE001 - one failure must not stop the other cancellations
+            self._closed_totals.internal_errors += 1
+            log.exception("cancelling goal %d on %s failed", goal.token, goal.full_name)
+            return False
+        return True
+
+    def cancel_all_goals(self, reason: str) -> int:
+        """Cancel every active goal of every client (safety_stop); returns how many were asked to stop."""
+        goals = list(self._goals.values())
+        cancelled = sum(self._cancel(goal, reason) for goal in goals)
+        if goals:
+            log.warning("cancelling %d active goal(s): %s", len(goals), reason)
+        return cancelled
+
+    def _put_reply(self, session: ClientSession, frame: str, call: _CallRef) -> None:
+        size = utf8_size(frame)
+        if size > self.params.send_queue_bytes:  # never silently lost: the call fails visibly instead
+            message = (
+                f"the reply of {size} bytes exceeds this client's send queue ({self.params.send_queue_bytes})"
+            )
+            log.warning("client %d: %s", session.id, message)
+            frame = _failure_frame(call, message, "too_large")
+        session.queue.put_reply(frame)
 
     # --- outbound ----------------------------------------------------------------------------
 
@@ -532,6 +896,7 @@ class BridgeCore:
         for session in self._sessions.values():
             totals.add_session(session)
         totals.lost_upstream = sum(self.lost_upstream.values())
+        totals.goals_active = len(self._goals)
         return totals
 
     def stats(self) -> list[ClientStats]:
@@ -550,6 +915,11 @@ class BridgeCore:
                 sum(s.queue.lost.values()),
                 s.queue.control_overflow,
                 len(s.pending) + int(s.converting),
+                s.pending_calls,
+                len(s.goals),
+                s.service_calls,
+                s.goals_sent,
+                s.queue.feedback_dropped,
             )
             for s in self._sessions.values()
         ]
@@ -557,7 +927,13 @@ class BridgeCore:
 
 class _Refusal(Exception):
     def __init__(
-        self, message: str, code: str, request_id: RequestId | None, topic: str, level: str = "error"
+        self,
+        message: str,
+        code: str,
+        request_id: RequestId | None,
+        topic: str,
+        level: str = "error",
+        call: _CallRef | None = None,  # a refused call or goal: it also gets its failing reply
     ) -> None:
         super().__init__(message)
         self.message = message
@@ -565,3 +941,43 @@ class _Refusal(Exception):
         self.request_id = request_id
         self.topic = topic
         self.level = level
+        self.call = call
+
+
+_ANSWERED_OPS = ("call_service", "send_action_goal")
+
+
+@dataclass(frozen=True)
+class _CallRef:
+    """What a failing reply names: the op, the service or action as the client wrote it, the id."""
+
+    op: str
+    name: str
+    request_id: RequestId
+
+
+def _call_ref(request: CallService | SendActionGoal) -> _CallRef:
+    if isinstance(request, CallService):
+        return _CallRef("call_service", request.service, request.id)
+    return _CallRef("send_action_goal", request.action, request.id)
+
+
+def _failure_frame(call: _CallRef, message: str, code: str) -> str:
+    if call.op == "call_service":
+        return encode_service_failure(call.name, call.request_id, message, code)
+    return encode_action_failure(call.name, call.request_id, GOAL_ABORTED, message, code)
+
+
+def _id_text(request_id: RequestId) -> str:
+    return preview(request_id) if isinstance(request_id, str) else str(request_id)
+
+
+def _by_full_name(rules: tuple[Any, ...], namespace: str, section: str) -> dict[str, Any]:
+    """Allow-listed services or actions by resolved name; one name with two types is a config error."""
+    found: dict[str, Any] = {}
+    for rule in rules:
+        full = resolve_topic(rule.name, namespace)
+        known = found.setdefault(full, rule)
+        if known.type != rule.type:
+            raise ConfigError(f"'{section}': {full} is listed with two types, {known.type} and {rule.type}")
+    return found

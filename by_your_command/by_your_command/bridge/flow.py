@@ -31,6 +31,9 @@ class SendQueue:
     `suppressed` summary, so a client that floods us with bad requests and never reads cannot grow
     the bridge. Drop and loss reports are one counter per topic, so they need no bound.
     Sizes are bytes of UTF-8, whatever the text holds.
+    Call replies (a service's response, a goal's result) have their own lane, served before data
+    and never dropped: the core bounds how many calls a client may have outstanding, so their
+    number is bounded. Goal feedback is latest-wins per goal, in the data lane (`put_feedback`).
     """
 
     def __init__(
@@ -43,6 +46,8 @@ class SendQueue:
         self._entries: deque[_Entry] = deque()
         self._control: deque[str] = deque()
         self._control_bytes = 0
+        self._replies: deque[str] = deque()
+        self._reply_bytes = 0
         self._per_topic: dict[str, int] = {}
         self._bytes = 0
         self._unreported: dict[str, int] = {}
@@ -52,15 +57,47 @@ class SendQueue:
         self.dropped: dict[str, int] = {}  # every drop by topic (video replacements included)
         self.lost: dict[str, int] = {}  # lost before the bridge (DDS), reported to this subscriber
         self.control_overflow = 0  # status replies coalesced into a `suppressed` summary
+        self.feedback_dropped = 0  # goal feedback replaced by newer feedback or by the result, or no room
 
     @property
     def depth(self) -> int:
-        return len(self._entries)
+        return len(self._entries) + len(self._replies)
 
     @property
     def queued_bytes(self) -> int:
-        """Everything waiting for this client, status replies included."""
-        return self._bytes + self._control_bytes
+        """Everything waiting for this client, status replies and call replies included."""
+        return self._bytes + self._control_bytes + self._reply_bytes
+
+    def put_reply(self, text: str) -> None:
+        """A service response or a goal's result: never dropped (their number is bounded by the
+        client's outstanding calls). Counts towards the byte bound, so data yields to it."""
+        self._replies.append(text)
+        self._reply_bytes += utf8_size(text)
+        self._wakeup.set()
+
+    def put_feedback(self, text: str, key: str) -> bool:
+        """Goal feedback, latest-wins per `key` (one goal): a queued older one is replaced, and the
+        new one is dropped when the queue is full. Either way `feedback_dropped` counts it."""
+        victim = next((entry for entry in self._entries if entry.topic == key), None)
+        if victim is not None:
+            self._remove(victim)
+            self.feedback_dropped += 1
+        size = utf8_size(text)
+        if len(self._entries) >= self.max_messages or self.queued_bytes + size > self.max_bytes:
+            self.feedback_dropped += 1
+            return False
+        self._entries.append(_Entry(text, key, True, size))
+        self._per_topic[key] = self._per_topic.get(key, 0) + 1
+        self._bytes += size
+        self._wakeup.set()
+        return victim is None
+
+    def discard_feedback(self, key: str) -> None:
+        """The goal ended: its queued feedback must not reach the client after the result."""
+        victim = next((entry for entry in self._entries if entry.topic == key), None)
+        if victim is not None:
+            self._remove(victim)
+            self.feedback_dropped += 1
 
     def put(self, text: str, topic: str, drops_oldest: bool, topic_limit: int) -> bool:
         """Queue a frame; False when it (or an older one of the same topic) had to be dropped."""
@@ -113,7 +150,7 @@ class SendQueue:
         self._wakeup.set()
 
     def take_nowait(self) -> str | None:
-        """The next frame to send: owed drop/loss reports and summaries, then status frames, then data."""
+        """The next frame to send: owed drop/loss reports and summaries, call replies, status frames, data."""
         if self._unreported:
             counts, self._unreported = self._unreported, {}
             total = sum(counts.values())
@@ -147,6 +184,12 @@ class SendQueue:
                     counts=counts,
                 )
             )
+        # Replies before statuses: a `not_active` answer to a cancel must not overtake the result
+        # of the goal that had just ended (the client would take the goal for lost).
+        if self._replies:
+            text = self._replies.popleft()
+            self._reply_bytes -= utf8_size(text)
+            return text
         if self._control:
             text = self._control.popleft()
             self._control_bytes -= utf8_size(text)

@@ -18,7 +18,7 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
-from by_your_command.bridge.client_messages import Delivery, Lost
+from by_your_command.bridge.client_messages import Delivery, Lost, Received
 from by_your_command.bridge.config import TopicClass
 
 # topic -> (type, delivery lane) the demo subscribes to through the bridge (config/bridge.yaml).
@@ -69,6 +69,8 @@ class Narrator:
 
     def feed(self, delivery: Delivery) -> list[str]:
         """The transcript lines for one delivery (often none: state that changes nothing)."""
+        if not isinstance(delivery, (Received, Lost)):
+            return []  # replies to service calls and goals: the demo makes none
         at = delivery.received_at
         if isinstance(delivery, Lost):
             if delivery.count is None:  # the connection dropped: one line for all topics

@@ -10,7 +10,11 @@ handles honoured on resumption. Invented: timing, transcripts, token counts, usa
 the turnComplete message, the goAway schedule, a turnComplete after a cancellation, scripted
 cancellations (`cancel_after_ms`), a toolResponse for a cancelled call being ignored (counted).
 Not emulated: automatic activity detection (audio is only answered after audioStreamEnd), thinking,
-grounding, NON_BLOCKING scheduling, context window compression.
+grounding, context window compression. NON_BLOCKING functions (3.8-live): the toolCall ends the
+model turn (turnComplete) and the conversation goes on; a user turn does not cancel them; a
+functionResponse with willContinue keeps the call open (progress, no reply); the final one is
+answered per its scheduling (SILENT: never, WHEN_IDLE (also when absent, invented): once no reply
+runs, INTERRUPT: at once). willContinue or scheduling for a BLOCKING function is refused.
 """
 
 from __future__ import annotations
@@ -84,6 +88,7 @@ class SessionConfig:
     resumption: bool
     resume_handle: str | None
     functions: tuple[str, ...]
+    non_blocking: frozenset[str] = frozenset()  # functions declared with behavior NON_BLOCKING
 
     @staticmethod
     def from_setup(setup: JsonObject) -> SessionConfig:
@@ -117,6 +122,7 @@ class SessionConfig:
             resumption=resumption is not None,
             resume_handle=str_field(resumption, "handle", "sessionResumption") if resumption else None,
             functions=_function_names(setup),
+            non_blocking=_non_blocking(setup),
         )
 
 
@@ -197,6 +203,9 @@ class GeminiLiveSession:
         self._pending = _UserInput()  # audio/frames not yet answered (outside an activity)
         self._reply: _Reply | None = None
         self._calls: dict[str, CallTool] = {}  # toolCall id → the call awaiting its toolResponse
+        self._running: dict[str, CallTool] = {}  # NON_BLOCKING calls not finally answered yet
+        self._when_idle: deque[Turn] = deque()  # replies to NON_BLOCKING results, after the current one
+        self.progress_responses = 0  # willContinue functionResponses (progress of NON_BLOCKING calls)
         self._cancelled: deque[str] = deque(maxlen=256)  # ids withdrawn by toolCallCancellation
         self.cancelled_responses = 0  # toolResponses for cancelled calls (ignored)
         self._timers: list[asyncio.Task[None]] = []
@@ -323,6 +332,13 @@ class GeminiLiveSession:
             if not isinstance(response, dict):
                 raise WireError(f"{INVALID_ARGUMENT} '{where}' must be an object.")
             call_id = str_field(response, "id", where) or ""
+            if call_id in self._running:
+                await self._non_blocking_response(call_id, response, where)
+                continue
+            if field_value(response, "willContinue") is not None or field_value(response, "scheduling"):
+                raise WireError(
+                    f"{INVALID_ARGUMENT} '{where}': willContinue and scheduling need a NON_BLOCKING function."
+                )
             call = self._calls.pop(call_id, None)
             if call is None and call_id in self._cancelled:
                 self.cancelled_responses += 1  # too late: the call was withdrawn
@@ -336,6 +352,27 @@ class GeminiLiveSession:
             answered.append(call)
         if answered and not self._calls:
             self._begin(Turn(answered[-1].then))
+
+    async def _non_blocking_response(self, call_id: str, response: JsonObject, where: str) -> None:
+        call = self._running[call_id]
+        if str_field(response, "name", where) not in (None, call.name):
+            raise WireError(f"{INVALID_ARGUMENT} '{where}.name' does not match the call.")
+        scheduling = str_field(response, "scheduling", where) or "WHEN_IDLE"
+        if scheduling not in ("SILENT", "WHEN_IDLE", "INTERRUPT", "SCHEDULING_UNSPECIFIED"):
+            raise WireError(f"{INVALID_ARGUMENT} Invalid value at '{where}.scheduling'.")
+        self.conversation.add_text("tool", json.dumps(obj_field(response, "response", where) or {}))
+        if bool_field(response, "willContinue", where):
+            self.progress_responses += 1
+            return
+        del self._running[call_id]
+        if scheduling == "SILENT":
+            return
+        if scheduling == "INTERRUPT":
+            await self._interrupt()
+        if self._generating():
+            self._when_idle.append(Turn(call.then))
+        else:
+            self._begin(Turn(call.then))
 
     # ---- replies ----------------------------------------------------------------------------
     async def _user_turn(
@@ -393,10 +430,16 @@ class GeminiLiveSession:
                 await asyncio.Future()  # only an interruption ends it
             elif isinstance(content, CallTool):
                 call_id = f"function-call-{id(reply):x}-{self.model_turns}"
-                self._calls[call_id] = content
+                non_blocking = content.name in self.config.non_blocking
+                (self._running if non_blocking else self._calls)[call_id] = content
                 call = {"id": call_id, "name": content.name, "args": json.loads(content.arguments)}
                 await self._send({"toolCall": {"functionCalls": [call]}})
                 self.conversation.add_text("model", f"{content.name}({content.arguments})")
+                if non_blocking:  # the model turn ends; the call runs on (its result comes later)
+                    reply.finishing = True
+                    await self._end_turn(reply)
+                    self._next_when_idle()
+                    return
                 if reply.turn.cancel_after_ms is not None:
                     self._timers.append(
                         asyncio.ensure_future(self._cancel_later(call_id, reply.turn.cancel_after_ms))
@@ -411,6 +454,12 @@ class GeminiLiveSession:
         reply.finishing = True
         await self._send({"serverContent": {"generationComplete": True}})
         await self._end_turn(reply)
+        self._next_when_idle()
+
+    def _next_when_idle(self) -> None:
+        """A NON_BLOCKING result's reply waited for this one to end (this task ends right after)."""
+        if self._when_idle:
+            self._begin(self._when_idle.popleft())
 
     async def _cancel_later(self, call_id: str, after_ms: int) -> None:
         await asyncio.sleep(after_ms / 1000)
@@ -546,3 +595,15 @@ def _function_names(setup: JsonObject) -> tuple[str, ...]:
                 raise WireError(f"{INVALID_ARGUMENT} A function declaration needs a name.")
             names.append(name)
     return tuple(names)
+
+
+def _non_blocking(setup: JsonObject) -> frozenset[str]:
+    names: set[str] = set()
+    for tool in list_field(setup, "tools", "setup"):
+        for declaration in list_field(tool, "functionDeclarations", "setup.tools"):
+            behavior = str_field(declaration, "behavior", "functionDeclarations") or "BLOCKING"
+            if behavior not in ("BLOCKING", "NON_BLOCKING", "UNSPECIFIED"):
+                raise WireError(f"{INVALID_ARGUMENT} Invalid value at 'functionDeclarations.behavior'.")
+            if behavior == "NON_BLOCKING":
+                names.add(str(declaration.get("name")))
+    return frozenset(names)

@@ -56,21 +56,33 @@ class ScriptCursor:
     def __init__(self, script: Script) -> None:
         self.script = script
         self._turns: deque[Turn] = deque(script.turns)
-        self._follow_up: Say | None = None  # what answers after a tool call's output
+        # A tool call's `then` answers the first response after its function_call_output (other
+        # turns may come between: a robot action runs while the conversation goes on).
+        self._unbound: Say | None = None  # the call being streamed, before its call_id exists
+        self._follow_ups: dict[str, Say] = {}  # by call_id, until its output comes
+        self._answered: deque[Say] = deque()  # outputs came: these answer the next responses
 
     def heard(self) -> str:
-        if self._follow_up is None and self._turns:
+        if not self._answered and self._turns:
             return self._turns[0].heard
         return self.script.default_heard
 
     def next_turn(self) -> Turn:
-        if self._follow_up is not None:
-            turn, self._follow_up = Turn(self._follow_up), None
-            return turn
+        if self._answered:
+            return Turn(self._answered.popleft())
         turn = self._turns.popleft() if self._turns else Turn(self.script.default_reply)
         if isinstance(turn.reply, CallTool):
-            self._follow_up = turn.reply.then
+            self._unbound = turn.reply.then
         return turn
+
+    def bind(self, call_id: str) -> None:
+        if self._unbound is not None:
+            self._follow_ups[call_id], self._unbound = self._unbound, None
+
+    def output_for(self, call_id: str) -> None:
+        follow_up = self._follow_ups.pop(call_id, None)
+        if follow_up is not None:
+            self._answered.append(follow_up)
 
 
 @dataclass
@@ -324,6 +336,8 @@ class OpenAIRealtimeSession:
                 "item_not_found", f"Item with item_id not found: {previous}", "previous_item_id"
             )
         item.update(id=item_id, object="realtime.item", status="completed")
+        if item.get("type") == "function_call_output":
+            self._cursor.output_for(str(item.get("call_id")))
         audio_ms = sum(
             len(decode_pcm(part["audio"], "item.content.audio")) // BYTES_PER_MS
             for part in item.get("content", [])
@@ -483,6 +497,7 @@ class OpenAIRealtimeSession:
             "name": call.name,
             "arguments": "",
         }
+        self._cursor.bind(item["call_id"])
         await self._add_output_item(response, item)
         ids = {"response_id": response.data["id"], "item_id": item["id"], "output_index": 0}
         await self.send(

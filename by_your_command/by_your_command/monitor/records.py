@@ -14,6 +14,8 @@ MAX_RECORD_CHARS = 65_536  # an agent's record is a few hundred characters
 MAX_NAME_CHARS = 64
 MAX_REASON_CHARS = 200
 MAX_STREAM_ID_CHARS = 200  # a reply's audio stream id (matched whole against playback_status, never cut)
+MAX_REQUEST_ID_CHARS = 200  # a robot tool call's id (a key: matched whole, never cut)
+MAX_ARGUMENTS_CHARS = 200  # the agent cuts a call's arguments to this
 MAX_DEPTH = 8  # nested objects and lists (an agent's record has 2)
 MAX_COUNT = 10**12  # tokens, turns, serials: far above anything real, far below float trouble
 
@@ -82,7 +84,35 @@ class SessionOpenRecord:
     session: int
 
 
-Record = TurnRecord | SessionRecord | SessionOpenRecord
+@dataclass(frozen=True)
+class ToolCallRecord:
+    """A robot tool call started, made progress or ended (agents/metrics.ToolCallMetrics)."""
+
+    agent_id: str
+    request_id: str
+    tool: str
+    kind: str  # one of TOOL_KINDS
+    arguments: str  # the model's arguments as JSON text (cut): shown, never parsed
+    state: str  # RUNNING or one of ENDED_STATES
+    progress: str  # the latest feedback summary
+    elapsed_s: float  # since the call was sent, when the agent published the record
+    error: str
+
+
+TOOL_KINDS = ("action", "service", "topic", "command")
+RUNNING = "running"
+ENDED_STATES = (
+    "succeeded",
+    "failed",
+    "rejected",
+    "cancelled",
+    "timeout",
+    "refused",
+    "unavailable",
+    "published",
+)
+
+Record = TurnRecord | SessionRecord | SessionOpenRecord | ToolCallRecord
 
 # JSON names of the usage fields (agents/events.Usage) → Tokens fields.
 _USAGE_FIELDS = {
@@ -108,6 +138,8 @@ def parse_record(text: str) -> Record:
         raise BadRecord(f"nested deeper than {MAX_DEPTH} levels")
     kind = data.get("record")
     agent_id = _name(data, "agent_id", required=True)
+    if kind == "tool_call":  # carries no provider nor session
+        return _tool_call(data, agent_id)
     provider = _name(data, "provider", required=False)
     session = _count(data, "session")
     if kind == "session_open":
@@ -136,7 +168,23 @@ def parse_record(text: str) -> Record:
             _text(data, "close_reason", MAX_REASON_CHARS),
             tokens,
         )
-    raise BadRecord(f"record must be 'turn', 'session' or 'session_open', got {str(kind)[:20]!r}")
+    raise BadRecord(
+        f"record must be 'turn', 'session', 'session_open' or 'tool_call', got {str(kind)[:20]!r}"
+    )
+
+
+def _tool_call(data: dict[str, Any], agent_id: str) -> ToolCallRecord:
+    return ToolCallRecord(
+        agent_id,
+        _request_id(data),
+        _name(data, "tool", required=True),
+        _one_of(data, "kind", TOOL_KINDS),
+        _text(data, "arguments", MAX_ARGUMENTS_CHARS),
+        _one_of(data, "state", (RUNNING, *ENDED_STATES)),
+        _optional_text(data, "progress", MAX_REASON_CHARS),
+        _number(data, "elapsed_s"),
+        _optional_text(data, "error", MAX_REASON_CHARS),
+    )
 
 
 def _no_constant(name: str) -> Any:
@@ -177,6 +225,20 @@ def _stream_id(data: dict[str, Any]) -> str:
         return ""
     if not isinstance(value, str) or len(value) > MAX_STREAM_ID_CHARS:
         raise BadRecord(f"stream_id: expected a string of at most {MAX_STREAM_ID_CHARS} characters")
+    return value
+
+
+def _request_id(data: dict[str, Any]) -> str:
+    value = data.get("request_id")
+    if not isinstance(value, str) or not 0 < len(value) <= MAX_REQUEST_ID_CHARS:
+        raise BadRecord(f"request_id: expected a string of 1..{MAX_REQUEST_ID_CHARS} characters")
+    return value
+
+
+def _one_of(data: dict[str, Any], key: str, allowed: tuple[str, ...]) -> str:
+    value = data.get(key)
+    if not isinstance(value, str) or value not in allowed:
+        raise BadRecord(f"{key}: expected one of {', '.join(allowed)}")
     return value
 
 

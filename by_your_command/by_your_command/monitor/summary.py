@@ -1,5 +1,6 @@
 """Agent metrics summarised per agent and per provider: what the page, /diagnostics and the
-`agent_summary` topic show (state, sessions, billed seconds, tokens, cost, latency).
+`agent_summary` topic show (state, sessions, billed seconds, tokens, cost, latency, and the robot
+tool calls running and just ended).
 
 Fed with the raw `agent_metrics` texts in arrival order. Token totals come from closed sessions'
 records (authoritative), plus the turns of a session still open; a session whose record never came
@@ -9,23 +10,28 @@ records (authoritative), plus the turns of a session still open; a session whose
 from __future__ import annotations
 
 import statistics
+import time
 from collections import Counter, deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from by_your_command.monitor.cost import Prices, estimate_cost
 from by_your_command.monitor.records import (
+    RUNNING,
     BadRecord,
     Record,
     SessionOpenRecord,
     SessionRecord,
     Tokens,
+    ToolCallRecord,
     TurnRecord,
     parse_record,
 )
 
 MAX_AGENTS = 32  # records of further agent ids are counted, not kept: memory stays bounded
+MAX_ACTIVE_CALLS = 32  # per agent (an agent has at most a few goals): the longest silent one goes first
+RECENT_CALLS = 10  # ended calls kept per agent
 OK, WARN = "ok", "warn"
 
 
@@ -52,6 +58,30 @@ class StatusReport:
 
 
 @dataclass
+class _Call:
+    record: ToolCallRecord
+    at: float  # when the record came (the summary's clock)
+
+    def as_dict(self, now: float) -> dict[str, Any]:
+        """The call as JSON-ready data; `age_s`: since its record came. A running call's
+        `elapsed_s` is estimated for now, so a goal with no feedback still shows its time."""
+        record, age = self.record, max(0.0, float(now - self.at))
+        data: dict[str, Any] = {
+            "request_id": record.request_id,
+            "tool": record.tool,
+            "kind": record.kind,
+            "arguments": record.arguments,
+            "state": record.state,
+            "progress": record.progress,
+            "elapsed_s": round(record.elapsed_s + (age if record.state == RUNNING else 0.0), 1),
+            "age_s": round(age, 1),
+        }
+        if record.state != RUNNING:
+            data["error"] = record.error
+        return data
+
+
+@dataclass
 class _Agent:
     agent_id: str
     latency_turns: int
@@ -71,6 +101,12 @@ class _Agent:
     last_reply_ms: float | None = None
     first_audio: deque[float] = field(default_factory=deque)
     reply: deque[float] = field(default_factory=deque)
+    active_calls: dict[str, _Call] = field(default_factory=dict)  # request_id → latest, oldest report first
+    recent_calls: deque[_Call] = field(default_factory=lambda: deque(maxlen=RECENT_CALLS))  # newest last
+    call_outcomes: Counter[str] = field(default_factory=Counter)  # ended calls per state (a fixed set)
+    calls_evicted: int = 0  # running calls forgotten: more than MAX_ACTIVE_CALLS at once
+    calls_unfinished: int = 0  # running when the agent stopped: no end record came
+    calls_late: int = 0  # a running record for a call that had already ended
 
     @property
     def tokens(self) -> Tokens:
@@ -105,6 +141,37 @@ class _Agent:
         self.last_close_reason = record.close_reason
         if self.open_session is None:
             self.state = session_state(record.close_reason)
+        if session_state(record.close_reason) == "stopped":
+            # The bridge cancels a departed client's goals: nothing will report on these any more.
+            self.calls_unfinished += len(self.active_calls)
+            self.active_calls.clear()
+
+    def tool_call(self, record: ToolCallRecord, now: float) -> None:
+        call = _Call(record, now)
+        if record.state != RUNNING:
+            self.active_calls.pop(record.request_id, None)
+            self.recent_calls.append(call)
+            self.call_outcomes[record.state] += 1
+            return
+        if any(ended.record.request_id == record.request_id for ended in self.recent_calls):
+            self.calls_late += 1  # out of order: its end is known, it is not running
+            return
+        self.active_calls.pop(record.request_id, None)  # re-inserted last: newest report last
+        self.active_calls[record.request_id] = call
+        while len(self.active_calls) > MAX_ACTIVE_CALLS:
+            del self.active_calls[next(iter(self.active_calls))]
+            self.calls_evicted += 1
+
+    def calls(self, now: float) -> dict[str, Any]:
+        active = sorted(self.active_calls.values(), key=lambda call: call.at - call.record.elapsed_s)
+        return {
+            "active_calls": [call.as_dict(now) for call in active],  # the earliest sent first
+            "recent_calls": [call.as_dict(now) for call in reversed(self.recent_calls)],  # newest first
+            "call_outcomes": dict(sorted(self.call_outcomes.items())),
+            "calls_evicted": self.calls_evicted,
+            "calls_unfinished": self.calls_unfinished,
+            "calls_late": self.calls_late,
+        }
 
 
 def _push(window: deque[float], value: float, size: int) -> None:
@@ -118,8 +185,15 @@ def _median(window: deque[float]) -> float | None:
 
 
 class AgentSummary:
-    def __init__(self, prices: Mapping[str, Prices], currency: str = "USD", latency_turns: int = 50) -> None:
+    def __init__(
+        self,
+        prices: Mapping[str, Prices],
+        currency: str = "USD",
+        latency_turns: int = 50,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self._prices = dict(prices)
+        self._clock = clock
         self._currency = currency
         self._latency_turns = latency_turns
         self._agents: dict[str, _Agent] = {}
@@ -143,6 +217,9 @@ class AgentSummary:
                 self.ignored_records += 1
                 return None
             agent = self._agents[record.agent_id] = _Agent(record.agent_id, self._latency_turns)
+        if isinstance(record, ToolCallRecord):
+            agent.tool_call(record, self._clock())
+            return record
         if record.provider:
             agent.provider = record.provider
         if isinstance(record, TurnRecord):
@@ -160,6 +237,7 @@ class AgentSummary:
     def snapshot(self, agents_connected: int | None = None) -> dict[str, Any]:
         """The summary as JSON-ready data (the `agent_summary` topic and the page)."""
         agents = []
+        now = self._clock()
         by_provider: dict[str, list[_Agent]] = {}
         for agent in sorted(self._agents.values(), key=lambda a: a.agent_id):
             by_provider.setdefault(agent.provider, []).append(agent)
@@ -183,6 +261,7 @@ class AgentSummary:
                     "median_first_audio_ms": _median(agent.first_audio),
                     "last_reply_ms": agent.last_reply_ms,
                     "median_reply_ms": _median(agent.reply),
+                    **agent.calls(now),
                 }
             )
         providers: list[dict[str, Any]] = []
@@ -247,14 +326,34 @@ class AgentSummary:
             sorted(self._agents.values(), key=lambda a: a.agent_id), snapshot["agents"], strict=True
         ):
             failed = agent.last_outcome == "failed" or agent.state == "failed"
-            values = {key: _value(value) for key, value in data.items() if key != "outcomes"}
+            values = {key: _value(value) for key, value in data.items() if key not in _LISTED}
             values.update({f"outcome.{name}": str(count) for name, count in data["outcomes"].items()})
+            values.update(_call_values(data))
             message = (
                 f"{agent.state}; {agent.turns} turn(s), {agent.sessions} session(s), "
                 f"{agent.billed_s:.1f} s billed, est. {_money(data['cost'])} {currency}"
             )
+            if data["active_calls"]:
+                message += f"; {len(data['active_calls'])} robot action(s) running"
             reports.append(StatusReport(WARN if failed else OK, f"agent {agent.agent_id}", message, values))
         return reports
+
+
+_LISTED = ("outcomes", "active_calls", "recent_calls", "call_outcomes")  # not one value each
+
+
+def _call_values(data: dict[str, Any]) -> dict[str, str]:
+    """Diagnostics of the robot tool calls: how many run, what each runs, how the last one ended."""
+    values = {"calls_active": str(len(data["active_calls"]))}
+    values.update({f"call_outcome.{name}": str(count) for name, count in data["call_outcomes"].items()})
+    for call in data["active_calls"]:
+        progress = f", {call['progress']}" if call["progress"] else ""
+        values[f"call.{call['request_id']}"] = f"{call['tool']} running {call['elapsed_s']:.1f} s{progress}"
+    if data["recent_calls"]:
+        last = data["recent_calls"][0]
+        error = f": {last['error']}" if last["error"] else ""
+        values["last_call"] = f"{last['tool']} {last['state']} after {last['elapsed_s']:.1f} s{error}"
+    return values
 
 
 def _money(cost: float | None) -> str:

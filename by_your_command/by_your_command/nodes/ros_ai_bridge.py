@@ -11,6 +11,9 @@ Losses before the bridge are counted from gaps in each message's publication seq
 last publisher leaves has its cached value forgotten.
 The node also serves the live monitor page on the same port (monitor/, docs/monitor.md) and
 summarises the agents' `agent_metrics` records into /diagnostics and the latched `agent_summary`.
+Robot tools (docs/tools.md): the node loads `tools_path`, publishes the catalog on the latched
+`robot_tools` and allow-lists the tools' services, actions and topics; clients call services and
+send action goals through it (nodes/_bridge_calls.py). A `safety_stop` message cancels every goal.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import logging
 import os
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +36,8 @@ from rclpy.publisher import Publisher
 from rclpy.qos import QoSHistoryPolicy, QoSProfile
 from std_msgs.msg import String
 
-from by_your_command.bridge.config import BridgeParams, TopicRule, load_allow_lists
+from by_your_command.bridge.calls import ActionRule, CallOutcome, ServiceRule
+from by_your_command.bridge.config import AllowLists, BridgeParams, ConfigError, TopicRule, load_allow_lists
 from by_your_command.bridge.core import BridgeCore, PublishError
 from by_your_command.bridge.names import resolve_topic
 from by_your_command.bridge.server import BridgeServer
@@ -41,9 +46,13 @@ from by_your_command.monitor.config import MonitorConfig, MonitorParams, load_mo
 from by_your_command.monitor.site import monitor_site
 from by_your_command.monitor.summary import WARN, AgentSummary, StatusReport
 from by_your_command.nodes import _qos
+from by_your_command.nodes._bridge_calls import RosCalls
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._runtime import run_node
-from by_your_command.ros.convert import ConversionError, from_dict, message_class, to_dict
+from by_your_command.ros.convert import ConversionError, Part, from_dict, message_class, to_dict
+from by_your_command.ros.interfaces import describe
+from by_your_command.tools.catalog import Catalog, build_catalog
+from by_your_command.tools.config import load_tools_config
 
 _QOS = {"stream": _qos.STREAM, "reliable": _qos.RELIABLE, "latched": _qos.LATCHED}
 STARTUP_TIMEOUT_S = 10.0
@@ -54,6 +63,25 @@ STOP_TIMEOUT_S = 5.0
 # ROS messages handed to the loop and not yet routed: beyond this the loop is hopelessly behind,
 # and further messages are counted as lost instead of growing the loop's queue without bound.
 MAX_IN_FLIGHT = 4096
+TOOLS_TOPIC = "robot_tools"  # relative: the catalog of this bridge's robot, latched
+SAFETY_STOP_TOPIC = "safety_stop"  # relative: the VAD heard "stop"
+
+
+def tool_allow_lists(catalog: Catalog) -> AllowLists:
+    """What the tools call: their services and actions (with the tool's timeout), their topics as
+    publishable commands. Merged into bridge.yaml's allow-lists."""
+    services: list[ServiceRule] = []
+    actions: list[ActionRule] = []
+    publish: list[TopicRule] = []
+    for tool in catalog.tools:
+        timeout_s = float(tool.rules.timeout_s)
+        if tool.kind == "service":
+            services.append(ServiceRule(tool.ros_name, tool.type, timeout_s))
+        elif tool.kind == "action":
+            actions.append(ActionRule(tool.ros_name, tool.type, timeout_s))
+        elif tool.kind == "topic":
+            publish.append(TopicRule(tool.ros_name, tool.type, "command", "reliable"))
+    return AllowLists(publish=tuple(publish), services=tuple(services), actions=tuple(actions))
 
 
 def subscription_qos(rule: TopicRule, audio_history_depth: int) -> QoSProfile:
@@ -137,6 +165,7 @@ class _NodeGraph:
         self.core: BridgeCore | None = None
         self.conversion_errors = 0
         self.callback_errors = 0
+        self.calls = RosCalls(node, loop)
 
     def create_entities(
         self, subscribe: list[tuple[TopicRule, str]], publish: list[tuple[TopicRule, str]]
@@ -257,6 +286,35 @@ class _NodeGraph:
         except Exception as error:  # rclpy raises plain RCLError/RuntimeError under overload
             raise PublishError(f"ROS publish failed: {error}") from None
 
+    # Service calls and action goals: nodes/_bridge_calls.py.
+
+    def convert_call(self, type_name: str, part: Part, args: dict[str, Any]) -> Any:
+        return self.calls.convert_call(type_name, part, args)
+
+    def call_service(
+        self,
+        rule: ServiceRule,
+        full_name: str,
+        request: Any,
+        timeout_s: float,
+        done: Callable[[CallOutcome], None],
+    ) -> None:
+        self.calls.call_service(rule, full_name, request, timeout_s, done)
+
+    def send_goal(
+        self,
+        rule: ActionRule,
+        full_name: str,
+        goal: Any,
+        token: int,
+        feedback: Callable[[str], None],
+        done: Callable[[CallOutcome], None],
+    ) -> None:
+        self.calls.send_goal(rule, full_name, goal, token, feedback, done)
+
+    def cancel_goal(self, token: int) -> None:
+        self.calls.cancel_goal(token)
+
 
 class RosAiBridge(Node):
     def __init__(self) -> None:
@@ -264,7 +322,8 @@ class RosAiBridge(Node):
         self.params = declare_config(self, BridgeParams)
         self.monitor_params = declare_config(self, MonitorParams)
         token = self.params.token or os.environ.get(self.params.token_env, "")
-        allow = load_allow_lists(self._config_path())
+        catalog = self._load_tools()
+        allow = load_allow_lists(self._config_path()).merged(tool_allow_lists(catalog))
         monitor = load_monitor_config(self._monitor_config_path())
         namespace = self.get_namespace()
 
@@ -279,8 +338,16 @@ class RosAiBridge(Node):
             [(rule, resolve_topic(rule.topic, namespace)) for rule in allow.subscribe],
             [(rule, resolve_topic(rule.topic, namespace)) for rule in allow.publish],
         )
+        self._graph.calls.prepare(
+            [(rule.type, resolve_topic(rule.name, namespace)) for rule in allow.services],
+            [(rule.type, resolve_topic(rule.name, namespace)) for rule in allow.actions],
+        )
         self.core = BridgeCore(self.params, allow, self._graph, namespace)
         self._graph.core = self.core
+        # Latched: an agent that connects any time later still learns what the robot can do.
+        self._tools_pub = self.create_publisher(String, TOOLS_TOPIC, _qos.LATCHED)
+        self._tools_pub.publish(String(data=catalog.to_json()))
+        self.create_subscription(String, SAFETY_STOP_TOPIC, self._on_safety_stop, _qos.RELIABLE)
         site: StaticSite | None = monitor_site(monitor) if self.monitor_params.monitor_page else None
         self.server = BridgeServer(self.core, token, site)
         self._setup_summary(monitor, namespace)
@@ -297,8 +364,29 @@ class RosAiBridge(Node):
         asyncio.run_coroutine_threadsafe(self._start(), self._loop).result(STARTUP_TIMEOUT_S)
         self.get_logger().info(
             f"ros_ai_bridge ready on {self.params.host}:{self.server.port} "
-            f"({len(allow.subscribe)} subscribable, {len(allow.publish)} publishable topics)"
+            f"({len(allow.subscribe)} subscribable, {len(allow.publish)} publishable topics, "
+            f"{len(allow.services)} services, {len(allow.actions)} actions; "
+            f"{len(catalog.tools)} robot tools on {self._tools_pub.topic_name})"
         )
+
+    def _load_tools(self) -> Catalog:
+        """The tools file → the catalog; a bad file (or an interface that is not installed) stops
+        the start with the file's name and what is wrong, like the other config errors."""
+        path = _installed_or(self.params.tools_path, "tools.yaml", "tools_path")
+        try:
+            return build_catalog(load_tools_config(path), describe)
+        except ValueError as error:  # ToolsConfigError names the tool and the key
+            raise ConfigError(f"robot tools {path}: {error}") from None
+
+    def _on_safety_stop(self, msg: String) -> None:
+        try:
+            self._loop.call_soon_threadsafe(self._safety_stop, msg.data)
+        except RuntimeError:
+            pass  # the loop is closed: the node is shutting down
+
+    def _safety_stop(self, reason: str) -> None:
+        cancelled = self.core.cancel_all_goals(f"safety stop: {reason}")
+        self.get_logger().info(f"safety stop ({reason[:80]!r}): cancelled {cancelled} goal(s)")
 
     def _config_path(self) -> Path:
         return _installed_or(self.params.config_path, "bridge.yaml", "config_path")
@@ -350,6 +438,7 @@ class RosAiBridge(Node):
         try:
             await asyncio.wait_for(self.server.stop(), SERVER_STOP_TIMEOUT_S)
         finally:
+            self._graph.calls.destroy()
             # Nothing may stay pending when the loop stops: a task destroyed pending runs its
             # cleanup at exit, without a loop ("Task was destroyed but it is pending!").
             await _cancel_other_tasks()
@@ -401,6 +490,20 @@ class RosAiBridge(Node):
             "sent_messages_total": totals.sent_messages,
             "sent_bytes_total": totals.sent_bytes,
             "subscribed_topics": ",".join(self.core.subscribed_topics()),
+            # service calls and action goals: the core's counts, then the ROS side's
+            "service_calls_total": totals.service_calls,
+            "service_failures_total": totals.service_failures,
+            "goals_sent_total": totals.goals_sent,
+            "goals_active": totals.goals_active,
+            "goals_succeeded_total": totals.goals_succeeded,
+            "goals_failed_total": totals.goals_failed,
+            "goals_cancelled_total": totals.goals_cancelled,
+            "feedback_dropped_total": totals.feedback_dropped,
+            "replies_discarded_total": totals.replies_discarded,
+            "ros_goals_tracked": self._graph.calls.active_goals,
+            "feedback_coalesced_total": self._graph.calls.feedback_coalesced,
+            "late_goal_answers_total": self._graph.calls.late_answers,
+            "call_callback_errors": self._graph.calls.callback_errors,
         }
         for topic, count in sorted(self.core.lost_upstream.items()):
             values[f"lost_upstream.{topic}"] = count
@@ -409,6 +512,9 @@ class RosAiBridge(Node):
             values[f"listeners.{topic}"] = listeners
         for topic, sources in sorted(self._graph.sources().items()):
             values[f"sources.{topic}"] = sources
+        # Whether each service's / action's server is there: 0 means a call would get no_server.
+        for name, ready in sorted(self._graph.calls.servers().items()):
+            values[f"servers.{name}"] = ready
         for client in stats:
             prefix = f"client{client.id}"
             values.update(
@@ -424,6 +530,11 @@ class RosAiBridge(Node):
                     f"{prefix}.lost": client.lost,
                     f"{prefix}.status_suppressed": client.status_suppressed,
                     f"{prefix}.pending_publishes": client.pending_publishes,
+                    f"{prefix}.pending_calls": client.pending_calls,
+                    f"{prefix}.active_goals": client.active_goals,
+                    f"{prefix}.service_calls": client.service_calls,
+                    f"{prefix}.goals_sent": client.goals_sent,
+                    f"{prefix}.feedback_dropped": client.feedback_dropped,
                 }
             )
         status = DiagnosticStatus(
@@ -448,6 +559,20 @@ class RosAiBridge(Node):
         if self._summary_errors:
             reports[0].values["summary_errors"] = str(self._summary_errors)
         return reports
+
+    async def _cancel_goals(self, reason: str) -> int:
+        return self.core.cancel_all_goals(reason)
+
+    def before_shutdown(self) -> None:
+        """run_node: the executor has stopped. Goals still running are cancelled (nobody will be
+        left to stop the robot), from the loop thread now that no executor thread calls rclpy."""
+        self._graph.calls.executor_stopped()
+        if self._loop.is_running():
+            cancelled = asyncio.run_coroutine_threadsafe(
+                self._cancel_goals("the bridge is stopping"), self._loop
+            ).result(STOP_TIMEOUT_S)
+            if cancelled:
+                self.get_logger().info(f"cancelled {cancelled} goal(s): the bridge is stopping")
 
     def destroy_node(self) -> None:
         # The node is going away (its logger will not publish any more): stop routing to it.

@@ -1,5 +1,6 @@
-"""The offline speech engine: pocketsphinx recognition of commands, phrases and a few questions,
-and espeak-ng replies. No network, no keys; pure library (the agent Provider wraps it)."""
+"""The offline speech engine: recognition of commands, the robot's tools' phrases, wake/sleep/stop
+phrases and a few questions, and espeak-ng replies. No network, no keys; pure library (the agent
+Provider wraps it)."""
 
 from by_your_command.offline.recognizer import (
     OfflineRecognizer,
@@ -11,9 +12,11 @@ from by_your_command.offline.recognizer import (
 from by_your_command.offline.replies import NOT_CAUGHT, RepliesConfig, acknowledgement, answer
 from by_your_command.offline.speaker import Speaker, SpeakerConfig, SpeechError
 from by_your_command.offline.spoken import RecognitionKind, SpokenVocabularyConfig
+from by_your_command.offline.tool_phrases import PhraseLimits, ToolPhrase, select_phrases
 
 __all__ = [
     "NOT_CAUGHT",
+    "PhraseLimits",
     "OfflineRecognizer",
     "Recognition",
     "RecognitionKind",
@@ -25,6 +28,8 @@ __all__ = [
     "SpeakerConfig",
     "SpeechError",
     "SpokenVocabularyConfig",
+    "ToolPhrase",
     "acknowledgement",
     "answer",
+    "select_phrases",
 ]

@@ -24,6 +24,7 @@ weights are dequantized once at load instead of on every decoder call.
 
 from __future__ import annotations
 
+import copy
 import importlib.util
 import logging
 from collections.abc import Sequence
@@ -167,15 +168,26 @@ class MoonshineScorer:
             raise ModelUnavailableError(f"cannot load the model in {directory}: {error}") from error
         self._outputs = [output.name for output in self._decoder.get_outputs()]
         self._marks = [i for i in map(self.tokenizer.piece, FINAL_MARKS) if i is not None]
-        self._root = _Node()
+        self._root = self._trie(texts)
+
+    def with_texts(self, texts: Sequence[str | Sequence[str]]) -> MoonshineScorer:
+        """A scorer of other texts on the same loaded model (its sessions are shared: onnxruntime
+        runs them from several threads; this scorer is left as it is)."""
+        other = copy.copy(self)
+        other._root = self._trie(texts)
+        return other
+
+    def _trie(self, texts: Sequence[str | Sequence[str]]) -> _Node:
+        root = _Node()
         for index, text in enumerate(texts):
             for written in [text] if isinstance(text, str) else text:  # its ways of being written
-                node = self._root
+                node = root
                 for token in self.tokenizer.encode(sentence_case(written)):  # as the model writes it
                     node = node.children.setdefault(token, _Node())
                 if index not in node.ends:
                     node.ends.append(index)
                 node.after_mark = _Node(ends=node.ends, marked=True)
+        return root
 
     def _session(self, path: Path, options: onnxruntime.SessionOptions) -> onnxruntime.InferenceSession:
         """The model as ONNX (ort_format.py: its int8 weights dequantized once, at load, instead of

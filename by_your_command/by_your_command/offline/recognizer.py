@@ -25,6 +25,7 @@ the decode time by max_utterance_s.
 
 from __future__ import annotations
 
+import copy
 import enum
 import logging
 import math
@@ -33,7 +34,7 @@ import re
 import tempfile
 import threading
 from collections import Counter, defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,6 +63,7 @@ from by_your_command.offline.spoken import (
     said_again,
     written_forms,
 )
+from by_your_command.offline.tool_phrases import NOT_IN_DICTIONARY, TAKEN, ToolPhrase, warn_left_out
 
 log = logging.getLogger(__name__)
 
@@ -154,6 +156,10 @@ class Evidence:
 
 
 _STOP = (RecognitionKind.PHRASE, "stop")  # the phrase that outranks everything
+# Words of a tool phrase that are no evidence it was said: "the" written alone is no "go to the kitchen".
+_FUNCTION_WORDS = frozenset(
+    ("a", "an", "the", "to", "of", "in", "on", "at", "my", "your", "and", "for", "me")
+)
 
 
 def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
@@ -180,19 +186,52 @@ def _rejected(reason: Rejection, text: str = "") -> Recognition:
 class OfflineRecognizer:
     """Decodes whole utterances; thread-safe (one decoder, one utterance at a time)."""
 
-    def __init__(self, config: RecognizerConfig | None = None, vocabulary: Vocabulary | None = None) -> None:
+    def __init__(
+        self,
+        config: RecognizerConfig | None = None,
+        vocabulary: Vocabulary | None = None,
+        tools: Sequence[ToolPhrase] = (),
+    ) -> None:
         self.config = config or RecognizerConfig()
         self.vocabulary = vocabulary or load_vocabulary(self.config.commands_file or None)
-        self.stats = RecognizerStats()
-        self._lock = threading.Lock()
         # Imported here: the rest of the package works without the 38 MB wheel.
         import pocketsphinx  # type: ignore[import-untyped]
 
-        pronunciations = _read_dictionary(pocketsphinx.Config()["dict"])
+        self._pocketsphinx = pocketsphinx
+        self._pronunciations = _read_dictionary(pocketsphinx.Config()["dict"])
+        missing = [word for word in self.config.filler_words if word not in self._pronunciations]
+        if missing:
+            raise ValueError(f"filler words not in the pronunciation dictionary: {missing}")
+        self.search = self.config.search  # what runs: MOONSHINE falls back to VERIFIED without it
+        self._scorer: MoonshineScorer | None = None
+        self._build(tools)
+
+    def with_tools(self, tools: Sequence[ToolPhrase]) -> OfflineRecognizer:
+        """A recognizer that also hears these tool phrases (and no others), sharing this one's
+        loaded parts: the pronunciation dictionary and the Moonshine model. Only the forms, the
+        small pocketsphinx decoder and the form trie are built (milliseconds, not the seconds of a
+        load); this one is left as it is (a decode on it may still run)."""
+        other = copy.copy(self)
+        other._build(tools)
+        return other
+
+    def _build(self, tools: Sequence[ToolPhrase]) -> None:
+        self.stats = RecognizerStats()
+        self._lock = threading.Lock()
+        pronunciations = self._pronunciations
         known = pronunciations.__contains__
-        named = build_spoken_forms(self.vocabulary, self.config.spoken)
+        self.tools, self.tools_left_out = self._hearable(tools, known)
+        named = build_spoken_forms(self.vocabulary, self.config.spoken, self.tools)
+        meanings = {form.words: form.canonical for form in named}
+        taken = [phrase.words for phrase in self.tools if meanings.get(phrase.words) != phrase.canonical]
+        if taken:
+            self.tools_left_out[TAKEN] += len(taken)
+            warn_left_out(TAKEN, taken)
+            self.tools = tuple(phrase for phrase in self.tools if phrase.words not in set(taken))
         self.forms: list[SpokenForm] = pronounceable(named, known)
         written = [written_forms(a.words, b.words) for a, b in zip(named, self.forms, strict=True)]
+        # Typed text is matched against the forms as declared, before they were made pronounceable.
+        self.tool_forms = [form for form in named if form.kind is RecognitionKind.TOOL]
         # Wake, sleep and stop said again are still that phrase ("stop, stop!"); a command said
         # twice might mean twice, and is left to be said once.
         self._written = [
@@ -221,27 +260,44 @@ class OfflineRecognizer:
         self._words_by_meaning: dict[tuple[RecognitionKind, str], set[str]] = defaultdict(set)
         for form in self.forms:
             self._words_by_meaning[(form.kind, form.canonical)].update(form.words.split())
-        missing = [word for word in self.config.filler_words if not known(word)]
-        if missing:
-            raise ValueError(f"filler words not in the pronunciation dictionary: {missing}")
         # The decoder gets a dictionary of only the words it can hear: with the shipped 126k-word
         # dictionary, building the filler model's search took 0.6-6 s (most of the load time);
         # with these few hundred words it takes milliseconds, and decodes the same.
         needed = {word for form in self.forms for word in form.words.split()} | set(self.config.filler_words)
         self._decoder = _decoder_with(
-            pocketsphinx,
+            self._pocketsphinx,
             "".join(line for word in sorted(needed) for line in pronunciations[word]),
             self.config.language_weight,
         )
-        self.search = self.config.search  # what runs: MOONSHINE falls back to VERIFIED without it
-        self._scorer: MoonshineScorer | None = None
-        if self.search is Search.MOONSHINE:
+        if self._scorer is not None:  # the model is loaded: only the forms' trie is new
+            self._scorer = self._scorer.with_texts(self._written)
+        elif self.search is Search.MOONSHINE:
             try:
                 self._scorer = MoonshineScorer(self._written, self.config.moonshine)
             except ModelUnavailableError as error:
                 log.warning("offline recognition without the Moonshine model (%s): pocketsphinx only", error)
                 self.search = Search.VERIFIED
         self._load_searches()
+
+    @staticmethod
+    def _hearable(
+        tools: Sequence[ToolPhrase], known: Callable[[str], bool]
+    ) -> tuple[tuple[ToolPhrase, ...], Counter[str]]:
+        """The tool phrases whose every word pocketsphinx can pronounce (a word it does not know
+        may be two it does: spoken.pronounceable); the others are named in a warning."""
+        kept, unknown = [], []
+        for phrase in tools:
+            try:
+                pronounceable([SpokenForm(phrase.words, RecognitionKind.TOOL, phrase.canonical)], known)
+            except ValueError as error:
+                unknown.append(f"{phrase.words} ({error})")
+                continue
+            kept.append(phrase)
+        left_out: Counter[str] = Counter()
+        if unknown:
+            left_out[NOT_IN_DICTIONARY] = len(unknown)
+            warn_left_out(NOT_IN_DICTIONARY, unknown)
+        return tuple(kept), left_out
 
     def _load_searches(self) -> None:
         # pocketsphinx's passes know the plain forms only: optional polite words in its grammar
@@ -406,11 +462,14 @@ class OfflineRecognizer:
         turn cannot be taken back; a command turned away is said again."""
         form = self.forms[score.index]
         base = form.canonical.partition("@")[0]
-        if form.kind is not RecognitionKind.COMMAND or base not in acceptance.moves_base:
+        # A robot tool may drive the base too ("go to the kitchen"), and nothing here says which
+        # does: every tool call needs the same positive evidence, from a word that carries meaning.
+        tool = form.kind is RecognitionKind.TOOL
+        if not tool and (form.kind is not RecognitionKind.COMMAND or base not in acceptance.moves_base):
             return False
         if grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score):
             return False
-        command_words = set(form.words.split()) - self._polite_words
+        command_words = set(form.words.split()) - self._polite_words - (_FUNCTION_WORDS if tool else set())
         return not command_words & set(_words(free_text))
 
     def _question_or_stop(

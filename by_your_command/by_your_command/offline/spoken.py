@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 from by_your_command.commands.grammar import Command, CommandGrammar
 from by_your_command.commands.vocabulary import CommandSpec, ModifierKind, ModifierUse, Vocabulary
+from by_your_command.offline.tool_phrases import ToolPhrase
 from by_your_command.vad.config import DEFAULT_SLEEP_PHRASES, DEFAULT_WAKE_PHRASES
 
 _WORD = re.compile(r"^[a-z]+(?:'[a-z]+)?$")
@@ -30,6 +31,9 @@ class RecognitionKind(str, enum.Enum):
     COMMAND = "command"  # a robot command: canonical is its normal form (pan@left)
     PHRASE = "phrase"  # wake / sleep / stop: canonical is that command (they are gated separately)
     QUESTION = "question"  # a question the offline agent answers: canonical is its id (time)
+    # A phrase of one of the robot's tools ("go to the kitchen"): canonical is the call,
+    # `go_to {"place": "kitchen"}` (tool_phrases.ToolPhrase). Judged like a command.
+    TOOL = "tool"
     REJECTED = "rejected"  # chat, noise, or nothing the grammar covers
 
 
@@ -148,8 +152,12 @@ def _command_forms(
             yield f"{name} {spoken}", f"{spec.name}@{bearing}"
 
 
-def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -> list[SpokenForm]:
-    """Every spoken form, in a stable order; raises ValueError on a form that maps ambiguously."""
+def build_spoken_forms(
+    vocabulary: Vocabulary, config: SpokenVocabularyConfig, tools: Iterable[ToolPhrase] = ()
+) -> list[SpokenForm]:
+    """Every spoken form, in a stable order; raises ValueError on a form of the vocabulary that maps
+    ambiguously. A tool phrase (and its polite forms) never displaces a form of the vocabulary:
+    one that is already said for something else is left out here (the caller names it)."""
     grammar = CommandGrammar(vocabulary)
     forms: dict[str, SpokenForm] = {}
 
@@ -159,7 +167,12 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
         words = " ".join(words.lower().split())
         known = forms.get(words)
         if known is not None and known.canonical != canonical:
-            raise ValueError(f"spoken form {words!r} means both {known.canonical!r} and {canonical!r}")
+            if kind is RecognitionKind.TOOL:
+                return
+            if known.kind is RecognitionKind.TOOL:  # the vocabulary's meaning wins ("can you stop")
+                del forms[words]
+            else:
+                raise ValueError(f"spoken form {words!r} means both {known.canonical!r} and {canonical!r}")
         forms.setdefault(words, SpokenForm(words, kind, canonical, polite_words, extra))
 
     for canonical, spoken in config.phrases.items():
@@ -187,7 +200,11 @@ def build_spoken_forms(vocabulary: Vocabulary, config: SpokenVocabularyConfig) -
             raise ValueError(f"extra question {question!r} is not one of the questions")
         for words in spoken:
             add(words, RecognitionKind.QUESTION, question, extra=True)
-    commands = [form for form in forms.values() if form.kind is RecognitionKind.COMMAND]
+    for phrase in tools:
+        add(phrase.words, RecognitionKind.TOOL, phrase.canonical)
+    commands = [
+        form for form in forms.values() if form.kind in (RecognitionKind.COMMAND, RecognitionKind.TOOL)
+    ]
     for opening, closing in _politeness(config):
         for form in commands:
             polite_words = len(f"{opening} {closing}".split())

@@ -1,5 +1,8 @@
 """Any ROS message ⇄ JSON-ready dicts, with rosbridge's conventions.
 
+Services and actions are messages too: their parts (`pkg/srv/T` Request/Response, `pkg/action/T`
+Goal/Result/Feedback) convert the same way (`part_class`).
+
 Nested messages become objects, arrays lists, Time/Duration `{sec, nanosec}` (they are ordinary
 messages), and uint8[]/char[] (and fixed uint8[N]) base64 strings, like rosbridge. Inbound dicts are
 checked field by field: unknown fields, wrong JSON types and out-of-range numbers are errors with
@@ -12,27 +15,26 @@ import array
 import base64
 import binascii
 import importlib
+import json
 import math
 import re
-from typing import Any
+from typing import Any, Literal
 
-from by_your_command.bridge.protocol import normalize_type
+from by_your_command.bridge.protocol import InterfaceKind, normalize_interface, normalize_type
+from by_your_command.tools.interface_types import INT_RANGES
+
+Part = Literal["request", "response", "goal", "result", "feedback"]
+_PART_KINDS: dict[str, tuple[InterfaceKind, str]] = {
+    "request": ("srv", "Request"),
+    "response": ("srv", "Response"),
+    "goal": ("action", "Goal"),
+    "result": ("action", "Result"),
+    "feedback": ("action", "Feedback"),
+}
 
 _SEQUENCE_RE = re.compile(r"^sequence<(.+?)(?:, ?(\d+))?>$")
 _ARRAY_RE = re.compile(r"^(.+)\[(\d+)\]$")
 _BOUNDED_STRING_RE = re.compile(r"^w?string<(\d+)>$")
-_INT_RANGES = {
-    "int8": (-(2**7), 2**7 - 1),
-    "uint8": (0, 2**8 - 1),
-    "char": (0, 2**8 - 1),
-    "octet": (0, 2**8 - 1),
-    "int16": (-(2**15), 2**15 - 1),
-    "uint16": (0, 2**16 - 1),
-    "int32": (-(2**31), 2**31 - 1),
-    "uint32": (0, 2**32 - 1),
-    "int64": (-(2**63), 2**63 - 1),
-    "uint64": (0, 2**64 - 1),
-}
 _FLOATS = {"float", "double"}
 _BYTE_ELEMENTS = {"uint8", "char", "octet"}
 # array.array typecodes rclpy uses for numeric sequences: fast bulk conversion
@@ -78,6 +80,26 @@ def message_class(type_name: str) -> Any:
         raise ConversionError(f"message type {type_name!r} is not installed") from None
 
 
+def interface_class(type_name: str, kind: InterfaceKind) -> Any:
+    """`std_srvs/srv/Trigger` (kind "srv") or `nav2_msgs/action/NavigateToPose` (kind "action"), also
+    without the middle part, → the generated Python class (what rclpy's clients take)."""
+    try:
+        package, _, name = normalize_interface(type_name, kind).split("/")
+    except ValueError as error:
+        raise ConversionError(str(error)) from None
+    try:
+        return getattr(importlib.import_module(f"{package}.{kind}"), name)
+    except (ImportError, AttributeError):
+        raise ConversionError(f"{kind} type {type_name!r} is not installed") from None
+
+
+def part_class(type_name: str, part: Part) -> Any:
+    """The message class of one part of a service (request, response) or action (goal, result,
+    feedback): `part_class("std_srvs/srv/Trigger", "request")` is `Trigger.Request`."""
+    kind, attribute = _PART_KINDS[part]
+    return getattr(interface_class(type_name, kind), attribute)
+
+
 def _fields(cls: Any) -> dict[str, str]:
     fields: dict[str, str] = cls.get_fields_and_field_types()
     return fields
@@ -88,6 +110,11 @@ def _fields(cls: Any) -> dict[str, str]:
 
 def to_dict(msg: Any) -> dict[str, Any]:
     return {name: _value_to_json(getattr(msg, name), kind) for name, kind in _fields(type(msg)).items()}
+
+
+def to_json(msg: Any) -> str:
+    """The message as compact JSON object text (non-finite floats are null, as in `to_dict`)."""
+    return json.dumps(to_dict(msg), separators=(",", ":"), allow_nan=False)
 
 
 def _value_to_json(value: Any, kind: str) -> Any:
@@ -204,10 +231,10 @@ def _scalar_from_json(value: Any, kind: str, path: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConversionError(f"{path}: expected a number, got {_show(value)}")
         return float(value)
-    if kind in _INT_RANGES:
+    if kind in INT_RANGES:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConversionError(f"{path}: expected an integer, got {_show(value)}")
-        low, high = _INT_RANGES[kind]
+        low, high = INT_RANGES[kind]
         if not low <= value <= high:
             raise ConversionError(f"{path}: {_show(value)} is out of range for {kind} [{low}, {high}]")
         return bytes([value]) if kind == "octet" else value

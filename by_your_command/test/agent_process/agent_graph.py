@@ -226,9 +226,27 @@ def bridge(namespace: str, port: int = 0, *params: str) -> Iterator[Bridge]:
 
 
 @contextmanager
-def bridge_process(namespace: str, port: int = 0) -> Iterator[tuple[int, Output]]:
-    with bridge(namespace, port) as running:
+def bridge_process(namespace: str, port: int = 0, *params: str) -> Iterator[tuple[int, Output]]:
+    with bridge(namespace, port, *params) as running:
         yield running.port, running.output
+
+
+@contextmanager
+def demo_robot_process(namespace: str, *params: str) -> Iterator[subprocess.Popen[str]]:
+    """demo_robot (a pretend robot: navigate_to_pose, dock, battery_status); `params` name:=value."""
+    args = [arg for param in params for arg in ("-p", param)]
+    command = python_module(
+        "by_your_command.nodes.demo_robot", "--ros-args", "-r", f"__ns:={namespace}", *args
+    )
+    with running_process(command) as process:
+        output = Output(process)
+        wait_for(
+            lambda: output.find("demo_robot ready") or process.poll() is not None,
+            timeout=60,
+            what="demo_robot startup",
+        )
+        assert output.find("demo_robot ready"), str(output)
+        yield process
 
 
 @contextmanager
@@ -590,6 +608,7 @@ def gemini_graph(
     processor: bool = False,
     forwarder: Sequence[str] | None = None,
     installed: bool = False,
+    bridge_params: Sequence[str] = (),
 ) -> Iterator[AgentGraph]:
     """The probe, the nodes asked for (player with a WAV sink, command processor, frame forwarder
     with `forwarder` parameters), the bridge, and one `byc agent` per (emulator, shipped config,
@@ -605,7 +624,7 @@ def gemini_graph(
         if forwarder is not None:
             nodes.append(stack.enter_context(frame_forwarder_process(namespace, *forwarder)))
         probe.wait_nodes(alive(*nodes), wav is not None, processor, forwarder is not None)
-        port, _ = stack.enter_context(bridge_process(namespace))
+        port, _ = stack.enter_context(bridge_process(namespace, 0, *bridge_params))
         running = []
         for api, shipped, settings in agents:
             if installed:

@@ -81,6 +81,22 @@ class FakePort:
         request_id, text = self.of("request")[index]
         return CommandStatus(text, text if accepted else "", accepted, reason, "", request_id, 0, 1)
 
+    async def call_service(
+        self, request_id: str, service: str, service_type: str, args: dict[str, Any]
+    ) -> None:
+        await self._record("service", (request_id, service, service_type, args))
+
+    async def send_action_goal(
+        self, request_id: str, action: str, action_type: str, args: dict[str, Any]
+    ) -> None:
+        await self._record("goal", (request_id, action, action_type, args))
+
+    async def cancel_action_goal(self, request_id: str, action: str) -> None:
+        await self._record("cancel", (request_id, action))
+
+    async def publish_tool_message(self, topic: str, msg_type: str, msg: dict[str, Any]) -> None:
+        await self._record("tool_message", (topic, msg_type, msg))
+
     async def publish_interruption(
         self, stream_id: str, reason: str, stamp: float, action: PlayerAction = PlayerAction.CUT
     ) -> None:

@@ -126,6 +126,10 @@ class FakeProvider:
             self.calls.append(("tool_result", (result.call_id, result.output)))
         self._answer()  # one reply for all of them
 
+    async def send_tool_progress(self, call_id: str, text: str) -> None:
+        self._check()
+        self.calls.append(("progress", (call_id, text)))
+
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         self._check()
         self.calls.append(("interrupt", (response_id, item_id, played_ms)))

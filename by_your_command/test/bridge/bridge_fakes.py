@@ -8,11 +8,12 @@ import os
 import socket
 import struct
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
+from by_your_command.bridge.calls import ActionRule, CallOutcome, ServiceRule
 from by_your_command.bridge.config import AllowLists, BridgeParams, TopicRule, parse_allow_lists
 from by_your_command.bridge.core import BridgeCore, PublishError
 from by_your_command.bridge.server import BridgeServer
@@ -29,9 +30,48 @@ ALLOW = parse_allow_lists(
             {"topic": "response_text", "type": "std_msgs/msg/String"},
             {"topic": "response_cmd", "type": "std_msgs/msg/String", "class": "command"},
         ],
+        "services": [
+            {"name": "reset_pose", "type": "std_srvs/srv/Trigger", "timeout_s": 5},
+            {"name": "/global/set_flag", "type": "std_srvs/SetBool"},
+        ],
+        "actions": [
+            {"name": "navigate", "type": "nav2_msgs/action/NavigateToPose", "timeout_s": 3},
+        ],
     }
 )
 NAMESPACE = "/robot1"
+
+
+@dataclass
+class FakeCall:
+    """A service call the core made; the test answers it with `done`."""
+
+    rule: ServiceRule
+    full_name: str
+    request: Any
+    timeout_s: float
+    done: Callable[[CallOutcome], None]
+
+
+@dataclass
+class FakeGoal:
+    """A goal the core sent; the test drives `feedback` and `done`."""
+
+    rule: ActionRule
+    full_name: str
+    goal: Any
+    token: int
+    feedback: Callable[[str], None]
+    done: Callable[[CallOutcome], None]
+    cancels: int = 0
+
+
+@dataclass
+class ConvertedCall:
+    type_name: str
+    part: str
+    args: dict[str, Any]
+    thread: int = field(default_factory=threading.get_ident)
 
 
 class FakeGraph:
@@ -39,6 +79,8 @@ class FakeGraph:
 
     `hold(text)` makes the conversion of a message whose `data` is `text` block (on its worker
     thread) until `release(text)`: tests can prove what happens while a conversion is running.
+    Services and actions are scripted by the test: calls and goals are recorded and answered by
+    calling their `done`/`feedback`; a call's args with key "bad" fail conversion (bad_args).
     """
 
     def __init__(self) -> None:
@@ -47,6 +89,10 @@ class FakeGraph:
         self.published: list[tuple[str, dict[str, Any]]] = []
         self.converting: set[str] = set()  # held conversions that have started
         self._holds: dict[str, threading.Event] = {}
+        self.converted_calls: list[ConvertedCall] = []
+        self.calls: list[FakeCall] = []
+        self.goals: dict[int, FakeGoal] = {}  # by token
+        self.fail_next: Exception | None = None  # raised by the next call_service/send_goal
 
     def hold(self, data: str) -> None:
         self._holds[data] = threading.Event()
@@ -78,6 +124,46 @@ class FakeGraph:
 
     def publish(self, rule: TopicRule, full_topic: str, message: Any) -> None:
         self.published.append((full_topic, message))
+
+    def convert_call(self, type_name: str, part: str, args: dict[str, Any]) -> Any:
+        if "bad" in args:
+            raise PublishError("bad: no such field")
+        self.converted_calls.append(ConvertedCall(type_name, part, args))
+        return {"converted": args}
+
+    def _maybe_fail(self) -> None:
+        error, self.fail_next = self.fail_next, None
+        if error is not None:
+            raise error
+
+    def call_service(
+        self,
+        rule: ServiceRule,
+        full_name: str,
+        request: Any,
+        timeout_s: float,
+        done: Callable[[CallOutcome], None],
+    ) -> None:
+        self._maybe_fail()
+        self.calls.append(FakeCall(rule, full_name, request, timeout_s, done))
+
+    def send_goal(
+        self,
+        rule: ActionRule,
+        full_name: str,
+        goal: Any,
+        token: int,
+        feedback: Callable[[str], None],
+        done: Callable[[CallOutcome], None],
+    ) -> None:
+        self._maybe_fail()
+        self.goals[token] = FakeGoal(rule, full_name, goal, token, feedback, done)
+
+    def cancel_goal(self, token: int) -> None:
+        self.goals[token].cancels += 1
+
+    def goal(self, index: int = -1) -> FakeGoal:
+        return list(self.goals.values())[index]
 
 
 def make_core(params: BridgeParams | None = None, allow: AllowLists = ALLOW) -> tuple[BridgeCore, FakeGraph]:

@@ -13,10 +13,22 @@ from by_your_command.bridge.flow import LogLimiter, SendQueue, TokenBucket
 from by_your_command.bridge.names import resolve_topic
 from by_your_command.bridge.protocol import (
     Advertise,
+    CallService,
+    CancelActionGoal,
+    GoalFeedback,
+    GoalResult,
     ProtocolError,
     Publish,
+    SendActionGoal,
+    ServiceReply,
     Subscribe,
+    encode_action_failure,
+    encode_action_feedback,
+    encode_action_result,
     encode_request,
+    encode_service_failure,
+    encode_service_response,
+    normalize_interface,
     parse_request,
     parse_server_frame,
 )
@@ -48,7 +60,20 @@ def test_parse_subscribe_with_rosbridge_fields() -> None:
         ("{not json", "malformed JSON"),
         ("[1,2]", "JSON object"),
         ('{"topic":"x"}', "missing 'op'"),
-        ('{"op":"call_service","service":"/x"}', "unsupported op"),
+        ('{"op":"call_service","service":"/x"}', "needs an 'id'"),
+        ('{"op":"advertise_service","service":"/x","type":"a/B"}', "unsupported op"),
+        ('{"op":"call_service","id":1,"service":"a//b"}', "invalid service name"),
+        ('{"op":"call_service","id":1,"service":"/x","args":[1]}', "'args' must be a JSON object"),
+        ('{"op":"call_service","id":1,"service":"/x","type":"a/msg/B"}', "invalid srv type"),
+        ('{"op":"call_service","id":1,"service":"/x","timeout":0}', "'timeout'"),
+        ('{"op":"call_service","id":1,"service":"/x","timeout":3601}', "'timeout'"),
+        ('{"op":"call_service","id":1,"service":"/x","timeout":true}', "'timeout'"),
+        ('{"op":"call_service","id":1,"service":"/x","compression":"cbor"}', "compression"),
+        ('{"op":"send_action_goal","id":1,"action":"/a","args":{}}', "'action_type'"),
+        ('{"op":"send_action_goal","id":1,"action":"/a","action_type":"p/srv/T"}', "invalid action type"),
+        ('{"op":"send_action_goal","id":1,"action":"/a","action_type":"p/T","feedback":1}', "'feedback'"),
+        ('{"op":"send_action_goal","action":"/a","action_type":"p/T"}', "needs an 'id'"),
+        ('{"op":"cancel_action_goal","id":"g"}', "'action'"),
         ('{"op":"subscribe"}', "'topic'"),
         ('{"op":"subscribe","topic":"a//b"}', "invalid topic"),
         ('{"op":"subscribe","topic":"a","throttle_rate":-1}', "non-negative"),
@@ -421,3 +446,83 @@ def test_a_message_taken_after_its_publisher_left_is_passed_on_but_not_remembere
     late = core.open_session("late")
     core.handle_frame(late, '{"op":"subscribe","topic":"voice_activity"}')
     assert late.queue.take_nowait() is None
+
+
+# --- services and actions (issue 35) ------------------------------------------------------------
+
+
+def test_parse_call_ops_as_roslibpy_sends_them() -> None:
+    call = parse_request(
+        '{"op":"call_service","id":"call_service:/x:1","service":"/x","args":{"a":1},'
+        '"type":"std_srvs/Trigger","timeout":2.5,"fragment_size":1000}'
+    )
+    assert call == CallService("/x", {"a": 1}, "call_service:/x:1", "std_srvs/srv/Trigger", 2.5)
+    assert parse_request('{"op":"call_service","id":3,"service":"x"}') == CallService("x", {}, 3)
+    goal = parse_request(
+        '{"op":"send_action_goal","id":7,"action":"nav","action_type":"nav2_msgs/action/NavigateToPose",'
+        '"args":{"pose":{}},"feedback":true}'
+    )
+    assert goal == SendActionGoal("nav", "nav2_msgs/action/NavigateToPose", {"pose": {}}, 7, True)
+    assert (
+        parse_request('{"op":"send_action_goal","id":7,"action":"a","action_type":"p/T"}').feedback is False
+    )
+    assert parse_request('{"op":"cancel_action_goal","id":7,"action":"nav"}') == CancelActionGoal("nav", 7)
+    for request in (call, goal, CancelActionGoal("nav", "g1"), CallService("/x", {}, 1)):
+        assert parse_request(encode_request(request)) == request
+
+
+def test_a_refused_call_names_its_target_only_when_the_name_was_valid() -> None:
+    with pytest.raises(ProtocolError) as refused:
+        parse_request('{"op":"call_service","id":1,"service":"/x","args":"no"}')
+    assert (refused.value.request_id, refused.value.op, refused.value.target) == (1, "call_service", "/x")
+    with pytest.raises(ProtocolError) as refused:
+        parse_request('{"op":"call_service","id":1,"service":"x y"}')
+    assert refused.value.target == ""
+
+
+def test_interface_types_are_normalised_per_kind() -> None:
+    assert normalize_interface("std_srvs/Trigger", "srv") == "std_srvs/srv/Trigger"
+    assert normalize_interface("std_srvs/srv/Trigger", "srv") == "std_srvs/srv/Trigger"
+    assert normalize_interface("nav2_msgs/NavigateToPose", "action") == "nav2_msgs/action/NavigateToPose"
+    for bad, kind in [("std_msgs/msg/String", "srv"), ("a/srv/B", "action"), ("B", "srv"), ("a/B\n", "srv")]:
+        with pytest.raises(ValueError):
+            normalize_interface(bad, kind)  # type: ignore[arg-type]
+
+
+def test_call_frames_encode_once_and_parse_back_on_the_client_side() -> None:
+    frames = [
+        encode_service_response("/x", "c1", '{"success":true}'),
+        encode_service_failure("/x", 5, "no server", "no_server"),
+        encode_action_feedback("nav", "g", '{"left":2.5}'),
+        encode_action_result("nav", "g", 4, '{"done":1}'),
+        encode_action_failure("nav", "g", 0, "goal rejected", "rejected"),
+    ]
+    for frame in frames:
+        json.loads(frame)  # valid JSON, whatever was spliced in
+    assert [parse_server_frame(frame) for frame in frames] == [
+        ServiceReply("c1", "/x", True, {"success": True}),
+        ServiceReply(5, "/x", False, None, "no server", "no_server"),
+        GoalFeedback("g", "nav", {"left": 2.5}),
+        GoalResult("g", "nav", True, 4, {"done": 1}),
+        GoalResult("g", "nav", False, 0, None, "goal rejected", "rejected"),
+    ]
+    # roslibpy reads `status` of every action_result, failures included.
+    assert json.loads(frames[4])["status"] == 0 and json.loads(frames[4])["result"] is False
+
+
+@pytest.mark.parametrize(
+    ("frame", "fragment"),
+    [
+        ('{"op":"service_response","service":"/x","values":{}}', "'id'"),
+        ('{"op":"service_response","id":true,"service":"/x","values":{}}', "'id'"),
+        ('{"op":"service_response","id":1,"values":{}}', "'service'"),
+        ('{"op":"service_response","id":1,"service":"/x","values":[1],"result":true}', "not an object"),
+        ('{"op":"service_response","id":1,"service":"/x","values":{},"result":"yes"}', "'result'"),
+        ('{"op":"action_feedback","id":1,"action":"a","values":"x"}', "not an object"),
+        ('{"op":"action_result","id":1,"action":"a","values":{},"status":9,"result":true}', "status"),
+        ('{"op":"action_result","id":1,"action":"a","values":{},"status":"4","result":true}', "status"),
+    ],
+)
+def test_malformed_call_frames_from_the_server_are_protocol_errors(frame: str, fragment: str) -> None:
+    with pytest.raises(ProtocolError, match=fragment):
+        parse_server_frame(frame)

@@ -13,6 +13,7 @@ import logging
 import math
 import random
 from collections.abc import Coroutine
+from dataclasses import replace
 from http import HTTPStatus
 from typing import Any
 
@@ -23,6 +24,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
 import by_your_command.bridge.client as client_module
+from by_your_command.bridge.calls import CallOutcome
 from by_your_command.bridge.client import (
     BridgeClient,
     BridgeRefused,
@@ -30,8 +32,12 @@ from by_your_command.bridge.client import (
     ClientClosed,
     ClientFailed,
     ClientOptions,
+    GoalFeedback,
+    GoalResult,
     Lost,
     Received,
+    ServiceReply,
+    TooManyCalls,
     backoff_delay,
 )
 from by_your_command.bridge.client_inbox import Inbox, InboxLimits
@@ -551,3 +557,277 @@ def test_state_losses_merge_and_pending_keys_are_bounded() -> None:
     losses = [d for d in out if isinstance(d, Lost)]
     assert len(losses) == 1 and losses[0].count is None  # 2 + unknown = unknown
     assert inbox.dropped["state"] == 1 and inbox.pop() is None and inbox.queued()["state"] == 0
+
+
+# --- 4. service calls and action goals (issue 35) -------------------------------------------------
+
+
+def service_response(request_id: Any, values: Any, result: bool = True, **extra: Any) -> str:
+    frame = {
+        "op": "service_response",
+        "service": "/reset",
+        "id": request_id,
+        "values": values,
+        "result": result,
+    }
+    return json.dumps({**frame, **extra})
+
+
+def action_frame(op: str, request_id: Any, values: Any, **extra: Any) -> str:
+    return json.dumps({"op": op, "action": "/nav", "id": request_id, "values": values, **extra})
+
+
+def test_calls_are_sent_as_rosbridge_ops_and_replies_come_out_first() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, "prompt_text")
+        try:
+            await client.call_service("/reset", {"hard": True}, "c1", "std_srvs/Trigger", timeout_s=2)
+            await client.send_action_goal("/nav", "nav2_msgs/NavigateToPose", {"pose": {}}, "g1")
+            await client.cancel_action_goal("/nav", "g1")
+            await eventually(lambda: len(bridge.requests[-1]) == 4, what="three requests")
+            assert bridge.requests[-1][1:] == [
+                {
+                    "op": "call_service",
+                    "id": "c1",
+                    "service": "/reset",
+                    "args": {"hard": True},
+                    "type": "std_srvs/srv/Trigger",
+                    "timeout": 2,
+                },
+                {
+                    "op": "send_action_goal",
+                    "id": "g1",
+                    "action": "/nav",
+                    "action_type": "nav2_msgs/action/NavigateToPose",
+                    "args": {"pose": {}},
+                    "feedback": True,
+                },
+                {"op": "cancel_action_goal", "id": "g1", "action": "/nav"},
+            ]
+            assert client.health().outstanding_calls == 2
+            await bridge.send(
+                publish("prompt_text", {"data": "hello"}),
+                action_frame("action_feedback", "g1", {"left": 2}),
+                service_response("c1", {"success": True}),
+                action_frame("action_result", "g1", {}, status=5, result=True),
+            )
+            out = await receive_all(client, 3)
+            assert out == [
+                ServiceReply("c1", "/reset", True, {"success": True}),
+                GoalResult("g1", "/nav", True, 5, {}),  # its pending feedback went with the result
+                out[2],
+            ]
+            assert isinstance(out[2], Received) and out[2].msg == {"data": "hello"}
+            health = client.health()
+            assert (health.outstanding_calls, health.feedback_dropped, health.protocol_errors) == (0, 1, 0)
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_feedback_is_latest_wins_per_goal_and_counted() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge)
+        try:
+            await client.send_action_goal("/nav", "nav2_msgs/action/NavigateToPose", {}, "a")
+            await client.send_action_goal("/nav", "nav2_msgs/action/NavigateToPose", {}, "b")
+            await bridge.send(*(action_frame("action_feedback", "a", {"n": n}) for n in range(50)))
+            await bridge.send(action_frame("action_feedback", "b", {"n": -1}))
+            await eventually(lambda: client.health().feedback_dropped == 49, what="feedback read")
+            assert await receive_all(client, 2) == [
+                GoalFeedback("a", "/nav", {"n": 49}),
+                GoalFeedback("b", "/nav", {"n": -1}),
+            ]
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_failures_replies_to_unknown_ids_and_duplicate_ids() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge)
+        try:
+            await client.call_service("/reset", {}, 1)
+            with pytest.raises(ValueError, match="already outstanding"):
+                await client.call_service("/reset", {}, 1)
+            with pytest.raises(ValueError):  # what the bridge would refuse is refused here
+                await client.call_service("/reset", {"x": math.nan}, 2)
+            with pytest.raises(ValueError):
+                await client.send_action_goal("/nav", "std_msgs/msg/String", {}, 3)
+            with pytest.raises(ValueError):
+                await client.call_service("bad name", {}, 4)
+            await bridge.send(
+                service_response(99, {}),  # nobody asked
+                action_frame("action_feedback", 1, {}),  # 1 is a service call, not a goal
+                service_response(
+                    1, "service /reset is not in the services allow-list", False, code="not_allowed"
+                ),
+            )
+            reply = await client.receive(5)
+            assert reply == ServiceReply(
+                1, "/reset", False, None, "service /reset is not in the services allow-list", "not_allowed"
+            )
+            assert client.health().protocol_errors == 2
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_outstanding_calls_are_bounded() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, options=replace(FAST, max_outstanding_calls=2))
+        try:
+            await client.call_service("/reset", {}, "a")
+            await client.send_action_goal("/nav", "a/B", {}, "b")
+            with pytest.raises(TooManyCalls):
+                await client.call_service("/reset", {}, "c")
+            await bridge.send(service_response("a", {}))
+            await client.receive(5)
+            await client.call_service("/reset", {}, "c")
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_a_dropped_connection_fails_every_outstanding_call_and_goal() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge)
+        try:
+            await client.call_service("/reset", {}, "c1")
+            await client.send_action_goal("/nav", "a/B", {}, "g1")
+            await eventually(lambda: len(bridge.requests[-1]) == 2, what="requests")
+            await bridge.connections[-1].close(1011)
+            out = await receive_all(client, 2)
+            assert sorted((type(d).__name__, d.id, d.ok, d.code) for d in out) == [  # type: ignore[union-attr]
+                ("GoalResult", "g1", False, "disconnected"),
+                ("ServiceReply", "c1", False, "disconnected"),
+            ]
+            assert client.health().outstanding_calls == 0
+            await eventually(lambda: client.connected, what="reconnect")
+            await client.cancel_action_goal("/nav", "g1")  # it already ended here: nothing is sent
+            assert all(r["op"] != "cancel_action_goal" for c in bridge.requests for r in c)
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_calls_fail_loudly_when_disconnected() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge)
+        await bridge.stop()
+        await eventually(lambda: not client.connected, what="disconnect noticed")
+        try:
+            with pytest.raises(BridgeUnavailable):
+                await client.call_service("/reset", {}, "c1")
+            with pytest.raises(BridgeUnavailable):
+                await client.send_action_goal("/nav", "a/B", {}, "g1")
+            assert client.health().outstanding_calls == 0
+        finally:
+            await client.close()
+
+    run(scenario())
+
+
+def test_an_overdue_service_reply_and_a_goal_the_bridge_does_not_know_end_as_failures() -> None:
+    async def scenario() -> None:
+        bridge = await scripted()
+        client = await connected_client(bridge, options=replace(FAST, reply_grace_s=0))
+        try:
+            await client.call_service("/reset", {}, "c1", timeout_s=0.05)
+            reply = await client.receive(5)
+            assert isinstance(reply, ServiceReply) and (reply.ok, reply.code) == (False, "timeout")
+            await client.send_action_goal("/nav", "a/B", {}, "g1")
+            await client.cancel_action_goal("/nav", "g1")
+            await eventually(lambda: len(bridge.requests[-1]) == 3, what="requests")
+            await bridge.send(
+                json.dumps(
+                    {
+                        "op": "status",
+                        "level": "warning",
+                        "msg": "no active goal",
+                        "id": "g1",
+                        "code": "not_active",
+                    }
+                )
+            )
+            result = await client.receive(5)
+            assert result == GoalResult("g1", "/nav", False, 0, None, "no active goal", "not_active")
+            await bridge.send(service_response("c1", {}))  # too late: already failed here
+            await eventually(lambda: client.health().protocol_errors == 1, what="late reply counted")
+        finally:
+            await client.close()
+            await bridge.stop()
+
+    run(scenario())
+
+
+def test_calls_through_the_real_bridge_core_and_server() -> None:
+    async def scenario() -> None:
+        core, graph = make_core(BridgeParams(port=0))
+        server = BridgeServer(core, "")
+        await server.start()
+        try:
+            async with BridgeClient(f"ws://127.0.0.1:{server.port}/", FAST) as client:
+                await client.wait_connected(5)
+                await client.call_service("reset_pose", {}, "c1", "std_srvs/Trigger")
+                await client.call_service("not_listed", {}, "c2")
+                await client.send_action_goal("navigate", "nav2_msgs/NavigateToPose", {"pose": {}}, 7)
+                await eventually(lambda: graph.calls and graph.goals, what="call and goal in ROS")
+                graph.calls[0].done(CallOutcome(True, '{"success":true}'))
+                first = await client.receive(5)
+                second = await client.receive(5)
+                assert {first.id: first, second.id: second} == {  # type: ignore[union-attr]
+                    "c1": ServiceReply("c1", "reset_pose", True, {"success": True}),
+                    "c2": ServiceReply(
+                        "c2",
+                        "not_listed",
+                        False,
+                        None,
+                        "service 'not_listed' is not in the services allow-list",
+                        "not_allowed",
+                    ),
+                }
+                graph.goal().feedback('{"left":1}')
+                assert await client.receive(5) == GoalFeedback(7, "navigate", {"left": 1})
+                await client.cancel_action_goal("navigate", 7)
+                await eventually(lambda: graph.goal().cancels == 1, what="cancel in ROS")
+                graph.goal().done(CallOutcome(True, "{}", status=5))
+                assert await client.receive(5) == GoalResult(7, "navigate", True, 5, {})
+            await eventually(lambda: not core.sessions, what="session closed")
+        finally:
+            await server.stop()
+
+    run(scenario())
+
+
+def test_a_client_that_leaves_has_its_goals_cancelled_by_the_real_bridge() -> None:
+    async def scenario() -> None:
+        core, graph = make_core(BridgeParams(port=0))
+        server = BridgeServer(core, "")
+        await server.start()
+        try:
+            async with BridgeClient(f"ws://127.0.0.1:{server.port}/", FAST) as client:
+                await client.wait_connected(5)
+                await client.send_action_goal("navigate", "nav2_msgs/NavigateToPose", {}, "g")
+                await eventually(lambda: graph.goals, what="goal in ROS")
+            await eventually(lambda: graph.goal().cancels == 1, what="goal cancelled on disconnect")
+        finally:
+            await server.stop()
+
+    run(scenario())

@@ -21,6 +21,7 @@ from typing import Any
 
 import pytest
 from byc_testing import INSTALL_LIB, running_process, wait_for
+from call_frames import call_frames
 from fuzzing import TALLY, fuzz_settings, hostile_frames
 from hypothesis import given
 from rclpy.node import Node
@@ -29,7 +30,7 @@ from std_msgs.msg import String
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from by_your_command.bridge.protocol import ProtocolError, parse_request
+from by_your_command.bridge.protocol import CallService, ProtocolError, SendActionGoal, parse_request
 from by_your_command.nodes import _qos
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(1800)]
@@ -39,7 +40,11 @@ POLICY_CLOSES = {1007, 1008, 1009}  # invalid data, policy violation, too big
 REPLY_BOUND_S = 30.0  # the bound on any answer: generous for a loaded 2-core machine
 SUBSCRIBABLE = [rule.topic for rule in ALLOW.subscribe] + ["no_such_topic"]
 PUBLISHABLE = [rule.topic for rule in ALLOW.publish] + ["prompt_voice"]
-FRAMES = hostile_frames(SUBSCRIBABLE, PUBLISHABLE) | publish_frames()
+# Calls and goals: to names that are not allow-listed (refused) and to tools' ones if any; a real
+# call may be answered later (after the sentinel), which every exchange tolerates.
+CALLS = call_frames(["no_such_service", "/no/such/service"], ["no_such_action", "navigate_to_pose"])
+FRAMES = hostile_frames(SUBSCRIBABLE, PUBLISHABLE) | publish_frames() | CALLS
+REPLY_OPS = {"status", "publish", "service_response", "action_feedback", "action_result"}
 
 
 class Output:
@@ -151,12 +156,25 @@ def check_answer(frame: str | bytes, answer: list[dict[str, Any]] | int) -> None
         assert answer in POLICY_CLOSES, f"closed with {answer} after {str(frame)[:200]!r}"
         return
     statuses = [reply for reply in answer if reply["op"] == "status"]
-    assert all(reply["op"] in ("status", "publish") for reply in answer), answer
+    assert all(reply["op"] in REPLY_OPS for reply in answer), answer
     assert not any(status.get("code") == "internal_error" for status in statuses), statuses
     assert len([s for s in statuses if s["level"] == "error"]) <= 1, statuses
     expected = expected_refusal(frame)
     if expected is not None:
         assert [s["code"] for s in statuses] == [expected], (str(frame)[:200], statuses)
+    request = _parsed(frame)
+    if expected is None and isinstance(request, (CallService, SendActionGoal)) and statuses:
+        # A refused call is also answered as failed, with its id (what roslibpy's errback needs).
+        op = "service_response" if isinstance(request, CallService) else "action_result"
+        failed = [r for r in answer if r["op"] == op and r["id"] == request.id and r["result"] is False]
+        assert failed, (str(frame)[:200], answer)  # more only if an earlier call's late reply shares the id
+
+
+def _parsed(frame: str | bytes) -> object:
+    try:
+        return parse_request(frame)
+    except ProtocolError:
+        return None
 
 
 def sendable(frame: str | bytes) -> str | bytes:

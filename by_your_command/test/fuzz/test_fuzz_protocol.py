@@ -17,20 +17,26 @@ from typing import Any
 import pytest
 from bridge_fakes import FakeGraph
 from byc_testing import REPO_ROOT
+from call_frames import call_frames
 from fuzzing import TALLY, fuzz_settings, hostile_frames
 from hypothesis import given
 from hypothesis import strategies as st
 from ros_messages import ALLOW, PUBLISH_CLASSES, message_dicts, publish_frames
 
+from by_your_command.bridge.calls import ActionRule, CallOutcome, ServiceRule
 from by_your_command.bridge.config import BridgeParams, TopicRule
 from by_your_command.bridge.core import MAX_STATUS_MESSAGE_CHARS, BridgeCore, PublishError
 from by_your_command.bridge.protocol import (
+    MAX_CALL_TIMEOUT_S,
     MAX_ID_INT,
     MAX_OPTION_VALUE,
     MAX_TOPIC_CHARS,
     Advertise,
+    CallService,
+    CancelActionGoal,
     ProtocolError,
     Publish,
+    SendActionGoal,
     Subscribe,
     encode_request,
     parse_request,
@@ -43,9 +49,28 @@ NAMESPACE = "/fuzz"
 SUBSCRIBABLE = [rule.topic for rule in ALLOW.subscribe] + [f"{NAMESPACE}/prompt_text", "no_such_topic"]
 PUBLISHABLE = [rule.topic for rule in ALLOW.publish] + [f"{NAMESPACE}/response_cmd", "prompt_voice"]
 FRAMES = hostile_frames(SUBSCRIBABLE, PUBLISHABLE)
+# Calls and goals: allow-listed for the core target below, plus names that are not.
+CALL_ALLOW = replace(
+    ALLOW,
+    services=(ServiceRule("reset_pose", "std_srvs/srv/Trigger"),),
+    actions=(ActionRule("navigate", "nav2_msgs/action/NavigateToPose"),),
+)
+CALLS = call_frames(
+    ["reset_pose", f"{NAMESPACE}/reset_pose", "no_such_service"], ["navigate", "no_such_action"]
+)
 # What a topic or type may look like once the parser accepted it: nothing else slips through.
 STRICT_TOPIC = re.compile(r"/?[A-Za-z~][A-Za-z0-9_/~]*")
 STRICT_TYPE = re.compile(r"[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*")
+STRICT_SRV = re.compile(r"[A-Za-z][A-Za-z0-9_]*/srv/[A-Za-z][A-Za-z0-9_]*")
+STRICT_ACTION = re.compile(r"[A-Za-z][A-Za-z0-9_]*/action/[A-Za-z][A-Za-z0-9_]*")
+
+
+def request_name(request: Any) -> str:
+    if isinstance(request, CallService):
+        return request.service
+    if isinstance(request, (SendActionGoal, CancelActionGoal)):
+        return request.action
+    return str(request.topic)
 
 
 def check_parsed(frame: str | bytes) -> Any:
@@ -55,7 +80,8 @@ def check_parsed(frame: str | bytes) -> Any:
     except ProtocolError as error:
         assert str(error), "a refusal must say why"
         return None
-    assert STRICT_TOPIC.fullmatch(request.topic) and len(request.topic) <= MAX_TOPIC_CHARS, request
+    name = request_name(request)
+    assert STRICT_TOPIC.fullmatch(name) and len(name) <= MAX_TOPIC_CHARS, request
     assert request.id is None or isinstance(request.id, (str, int)) and not isinstance(request.id, bool)
     assert not isinstance(request.id, int) or abs(request.id) <= MAX_ID_INT
     if isinstance(request, Advertise):
@@ -68,6 +94,15 @@ def check_parsed(frame: str | bytes) -> Any:
         )
     if isinstance(request, Publish):
         assert isinstance(request.msg, dict)
+    if isinstance(request, (CallService, SendActionGoal, CancelActionGoal)):
+        assert request.id is not None, "calls are answered by id: it is required"
+    if isinstance(request, CallService):
+        assert isinstance(request.args, dict)
+        assert request.type is None or STRICT_SRV.fullmatch(request.type), request
+        assert request.timeout_s is None or 0 < request.timeout_s <= MAX_CALL_TIMEOUT_S
+    if isinstance(request, SendActionGoal):
+        assert isinstance(request.args, dict) and isinstance(request.feedback, bool)
+        assert STRICT_ACTION.fullmatch(request.action_type), request
     # What we accepted, our own client writes back the same way.
     assert parse_request(encode_request(request)) == request
     return request
@@ -80,12 +115,22 @@ def test_any_frame_parses_to_a_request_or_a_protocol_error(frame: str | bytes) -
         check_parsed(frame)
 
 
+@fuzz_settings(short=300, long=20_000)
+@given(CALLS)
+def test_any_call_frame_parses_to_a_call_or_a_protocol_error(frame: str) -> None:
+    with TALLY.input("bridge.parse_request (calls)"):
+        check_parsed(frame)
+
+
 @pytest.mark.parametrize(
     "frame",
     [
         '{"op":"subscribe","topic":"prompt_text\\n"}',
         '{"op":"advertise","topic":"response_text","type":"std_msgs/String\\n"}',
         '{"op":"subscribe","topic":"prompt_text","type":"std_msgs/msg/String\\n"}',
+        '{"op":"call_service","id":1,"service":"reset_pose\\n"}',
+        '{"op":"call_service","id":1,"service":"reset_pose","type":"std_srvs/Trigger\\n"}',
+        '{"op":"send_action_goal","id":1,"action":"navigate","action_type":"a/B\\n"}',
     ],
 )
 def test_a_trailing_newline_does_not_make_a_name_valid(frame: str) -> None:
@@ -118,7 +163,15 @@ def test_any_message_object_converts_or_is_a_conversion_error(case: tuple[str, d
 
 
 class ConvertingGraph(FakeGraph):
-    """The fake ROS port with the node's real conversion (what `_NodeGraph.convert` does)."""
+    """The fake ROS port with the node's real conversion (what `_NodeGraph.convert` does).
+
+    Calls and goals are answered at once, alternately with success and failure (and a goal with
+    feedback first), so every outcome path meets hostile ids and names.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.outcomes = 0
 
     def convert(self, rule: TopicRule, msg: dict[str, Any]) -> Any:
         try:
@@ -126,12 +179,27 @@ class ConvertingGraph(FakeGraph):
         except ConversionError as error:
             raise PublishError(str(error)) from None
 
+    def _outcome(self) -> CallOutcome:
+        self.outcomes += 1
+        if self.outcomes % 2:
+            return CallOutcome(True, '{"ok":true}', status=4)
+        return CallOutcome(False, error="no server", code="no_server", status=6)
+
+    def call_service(self, rule: Any, full_name: str, request: Any, timeout_s: float, done: Any) -> None:
+        super().call_service(rule, full_name, request, timeout_s, done)
+        done(self._outcome())
+
+    def send_goal(self, rule: Any, full_name: str, goal: Any, token: int, feedback: Any, done: Any) -> None:
+        super().send_goal(rule, full_name, goal, token, feedback, done)
+        feedback('{"left":1.0}')
+        done(self._outcome())
+
 
 def make_core() -> tuple[BridgeCore, ConvertingGraph]:
     # Everything inline (no event loop here); the worker path is exercised by the wire test.
     params = replace(BridgeParams(port=0, max_message_bytes=200_000), inline_convert_bytes=200_000)
     graph = ConvertingGraph()
-    return BridgeCore(params, ALLOW, graph, NAMESPACE), graph
+    return BridgeCore(params, CALL_ALLOW, graph, NAMESPACE), graph
 
 
 def replies(session: Any) -> list[dict[str, Any]]:
@@ -142,7 +210,8 @@ def replies(session: Any) -> list[dict[str, Any]]:
     return found
 
 
-SEQUENCES = st.lists(FRAMES | publish_frames(), min_size=1, max_size=8)
+SEQUENCES = st.lists(FRAMES | publish_frames() | CALLS, min_size=1, max_size=8)
+REPLY_OPS = {"call_service": "service_response", "send_action_goal": "action_result"}
 
 
 @fuzz_settings(short=150, long=6_000)
@@ -154,12 +223,20 @@ def test_core_answers_every_hostile_frame_and_still_serves(frames: list[str | by
         for frame in frames:
             rejected_before = session.rejected
             core.handle_frame(session, frame)  # never raises
-            answers = [r for r in replies(session) if r["op"] == "status"]
+            everything = replies(session)
+            answers = [r for r in everything if r["op"] == "status"]
             assert len(answers) == session.rejected - rejected_before <= 1
             for answer in answers:
                 assert answer["level"] in ("error", "warning") and answer["code"] != "internal_error", answer
                 assert len(answer["msg"]) <= MAX_STATUS_MESSAGE_CHARS + 1
-            if check_parsed(frame) is None:
+            request = check_parsed(frame)
+            if isinstance(request, (CallService, SendActionGoal)):
+                # Exactly one answer to the call, refused or not, with the id the client sent.
+                op = REPLY_OPS["call_service" if isinstance(request, CallService) else "send_action_goal"]
+                finals = [r for r in everything if r["op"] == op]
+                assert [(r["id"], type(r["result"])) for r in finals] == [(request.id, bool)], everything
+                assert finals[0]["result"] or isinstance(finals[0]["values"], str)
+            if request is None:
                 too_large = len(frame if isinstance(frame, bytes) else frame.encode("utf-8", "surrogatepass"))
                 expected = "too_large" if too_large > core.params.max_message_bytes else "bad_request"
                 assert [a["code"] for a in answers] == [expected], (frame[:200], answers)

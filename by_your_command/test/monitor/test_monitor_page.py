@@ -10,6 +10,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 from browser_helpers import b64, jpeg, transcript, wait_page
@@ -17,6 +18,7 @@ from byc_testing import wait_for
 from cdp import Browser, Page
 from live_bridge import NAMESPACE, live_bridge
 
+from by_your_command.agents.metrics import ToolCallMetrics
 from by_your_command.monitor.cost import Prices
 from by_your_command.monitor.summary import AgentSummary
 
@@ -298,6 +300,102 @@ def test_the_page_shows_the_robot_and_drives_it(browser: Browser, tmp_path: Path
         wait_page(page, "document.getElementById('attention').dataset.state === 'muted'")
         browser.pump()
         assert page.errors() == []  # no script error, no CSP violation
+
+
+def rows(page: Page, table: str) -> list[list[str]]:
+    return page.evaluate(
+        f"Array.from(document.querySelectorAll('#{table} tbody tr'))"
+        ".map(tr => Array.from(tr.cells).map(td => td.textContent))"
+    )
+
+
+def test_the_robot_actions_panel_shows_running_goals_and_how_they_ended(browser: Browser) -> None:
+    clock = [100.0]
+    summary = AgentSummary({}, clock=lambda: clock[0])
+
+    def record(request_id: str, state: str, tool: str = "go_to", **fields: Any) -> None:
+        text = json.dumps(
+            ToolCallMetrics(
+                "robot", request_id, tool, "action", '{"place": "kitchen"}', state, **fields
+            ).as_dict()
+        )
+        summary.feed(text)
+        bridge.deliver("agent_metrics", {"data": text})
+
+    with live_bridge() as bridge:
+        page = browser.new_page()
+        assert page.navigate(f"{bridge.url}/") == 200
+        wait_page(page, connected("connected"), what="connected")
+        wait_for(lambda: len(bridge.graph.subscribed) == len(PAGE_TOPICS), timeout=30, what="subscribed")
+        assert page.evaluate(shown("actions-panel"))
+
+        record("robot-1-1", "running")
+        clock[0] += 1.0
+        record("robot-1-2", "running", tool=HOSTILE)
+        clock[0] += 3.0
+        record("robot-1-1", "running", progress="distance_remaining 2.4", elapsed_s=4.0)
+        record("robot-1-3", "failed", tool="dock", elapsed_s=1.5, error="goal <b>aborted</b>")
+        record("robot-1-4", "succeeded", tool="look", elapsed_s=0.4)
+        bridge.deliver("agent_summary", {"data": json.dumps(summary.snapshot(agents_connected=1))})
+
+        active = wait_page(page, "document.querySelectorAll('#active-calls tbody tr').length === 2 && 1")
+        assert active
+        running = rows(page, "active-calls")
+        assert [row[:4] for row in running] == [
+            ["robot", "go_to", '{"place": "kitchen"}', "distance_remaining 2.4"],
+            ["robot", HOSTILE, '{"place": "kitchen"}', "–"],
+        ], running
+        assert re.fullmatch(r"\d+\.\d s", running[0][4]), running
+        ended = rows(page, "recent-calls")
+        assert [row[:5] for row in ended] == [
+            ["robot", "look", '{"place": "kitchen"}', "✓ succeeded", "0.4 s"],
+            ["robot", "dock", '{"place": "kitchen"}', "✗ failed: goal <b>aborted</b>", "1.5 s"],
+        ], ended
+        classes = page.evaluate(
+            "Array.from(document.querySelectorAll('#recent-calls tbody tr')).map(tr => tr.cells[3].className)"
+        )
+        assert classes == ["outcome-good", "outcome-bad"]  # the failure is marked
+        assert "2 running, 2 recently ended" in page.evaluate(
+            "document.getElementById('actions-summary').textContent"
+        )
+        # A goal with no feedback: its time still goes on between summaries.
+        wait_page(
+            page,
+            "document.querySelector('#active-calls tbody tr:nth-child(2) td.elapsed').textContent"
+            f" !== {json.dumps(running[1][4])}",
+            what="the elapsed time counting on",
+        )
+        # The transcript: each call's start and end (not its progress), as text.
+        wait_for(
+            lambda: len([line for kind, line in transcript(page) if kind == "action"]) >= 4,
+            timeout=30,
+            what="action lines",
+        )
+        assert [line for kind, line in transcript(page) if kind == "action"] == [
+            'robot: go_to {"place": "kitchen"} started',
+            f'robot: {HOSTILE} {{"place": "kitchen"}} started',
+            'robot: dock {"place": "kitchen"} ✗ failed after 1.5 s: goal <b>aborted</b>',
+            'robot: look {"place": "kitchen"} ✓ succeeded after 0.4 s',
+        ]
+        assert (
+            page.evaluate(
+                "document.querySelectorAll('#actions-panel img, #actions-panel b, #transcript img').length"
+            )
+            == 0
+        )
+        assert page.evaluate("window.pwned === undefined")
+
+        # The goals end: no longer active, listed among the outcomes.
+        record("robot-1-1", "cancelled", elapsed_s=6.0, error="safety stop")
+        record("robot-1-2", "timeout", tool=HOSTILE, elapsed_s=60.0)
+        bridge.deliver("agent_summary", {"data": json.dumps(summary.snapshot(agents_connected=1))})
+        wait_page(
+            page, "document.querySelectorAll('#recent-calls tbody tr').length === 4", what="four outcomes"
+        )
+        assert rows(page, "active-calls") == []
+        assert [row[3] for row in rows(page, "recent-calls")][:2] == ["✗ timeout", "■ cancelled: safety stop"]
+        browser.pump()
+        assert page.errors() == []
 
 
 def test_while_the_bridge_is_away_values_are_stale_and_the_token_is_never_printed(

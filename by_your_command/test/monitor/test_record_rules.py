@@ -14,14 +14,17 @@ from cdp import Browser
 from live_bridge import live_bridge
 
 from by_your_command.monitor.records import (
+    MAX_ARGUMENTS_CHARS,
     MAX_COUNT,
     MAX_DEPTH,
     MAX_RECORD_CHARS,
+    MAX_REQUEST_ID_CHARS,
     MAX_STREAM_ID_CHARS,
     BadRecord,
     Record,
     SessionOpenRecord,
     SessionRecord,
+    ToolCallRecord,
     TurnRecord,
     parse_record,
 )
@@ -52,6 +55,18 @@ SESSION: dict[str, Any] = {
     "usage": {"input_text_tokens": 5, "cached_input_tokens": 2},
 }
 OPENED: dict[str, Any] = {"record": "session_open", "agent_id": "robot", "provider": "offline", "session": 4}
+CALL: dict[str, Any] = {
+    "record": "tool_call",
+    "agent_id": "robot",
+    "request_id": "robot-1-7",
+    "tool": "go_to",
+    "kind": "action",
+    "arguments": '{"place": "kitchen"}',
+    "state": "running",
+    "progress": "distance_remaining 2.4",
+    "elapsed_s": 5.2,
+    "error": "",
+}
 
 
 def with_fields(base: dict[str, Any], **changes: Any) -> str:
@@ -168,13 +183,53 @@ CASES: list[tuple[str, str, bool]] = [
     ("a number", "3", False),
     ("null", "null", False),
     ("hostile HTML as the agent", with_fields(TURN, agent_id='<img src=x onerror="window.pwned=1">'), True),
+    # Robot tool calls: no provider nor session; known kinds and states only.
+    ("a running tool call", json.dumps(CALL), True),
+    (
+        "an ended tool call with its error",
+        with_fields(CALL, state="failed", progress="", error="goal\naborted  by <nav2>"),
+        True,
+    ),
+    (
+        "a started tool call: no progress nor error",
+        json.dumps({k: v for k, v in CALL.items() if k not in ("progress", "error")}),
+        True,
+    ),
+    ("null progress and error", with_fields(CALL, progress=None, error=None), True),
+    ("a tool call with a bogus provider is still read", with_fields(CALL, provider=5, session="x"), True),
+    *[(f"a call {state}", with_fields(CALL, state=state), True) for state in ("published", "timeout")],
+    *[(f"a {kind} call", with_fields(CALL, kind=kind), True) for kind in ("service", "topic", "command")],
+    ("an unknown state", with_fields(CALL, state="exploded"), False),
+    ("a state in capitals", with_fields(CALL, state="RUNNING"), False),
+    ("a state that is a list", with_fields(CALL, state=["running"]), False),
+    ("an unknown kind", with_fields(CALL, kind="rocket"), False),
+    ("a kind that is an object key", with_fields(CALL, kind="toString"), False),
+    ("no state", without(CALL, "state"), False),
+    ("no request id", without(CALL, "request_id"), False),
+    ("an empty request id", with_fields(CALL, request_id=""), False),
+    ("a request id that is a number", with_fields(CALL, request_id=7), False),
+    ("the longest request id", with_fields(CALL, request_id="r" * MAX_REQUEST_ID_CHARS), True),
+    ("a request id too long", with_fields(CALL, request_id="r" * (MAX_REQUEST_ID_CHARS + 1)), False),
+    ("no tool", without(CALL, "tool"), False),
+    ("a blank tool", with_fields(CALL, tool="  "), False),
+    ("no arguments", without(CALL, "arguments"), False),
+    ("arguments as an object", with_fields(CALL, arguments={"place": "kitchen"}), False),
+    ("long arguments are cut", with_fields(CALL, arguments="x" * (MAX_ARGUMENTS_CHARS * 3)), True),
+    ("progress that is not text", with_fields(CALL, progress=2.4), False),
+    ("an error that is not text", with_fields(CALL, error={"html": "<b>"}), False),
+    ("no elapsed time", without(CALL, "elapsed_s"), False),
+    ("a negative elapsed time", with_fields(CALL, elapsed_s=-0.5), False),
+    ("elapsed time as text", with_fields(CALL, elapsed_s="5"), False),
+    ("an infinite elapsed time", json.dumps(CALL).replace('"elapsed_s": 5.2', '"elapsed_s": 1e400'), False),
+    ("NaN elapsed", json.dumps(CALL).replace('"elapsed_s": 5.2', '"elapsed_s": NaN'), False),
+    ("hostile HTML as the tool", with_fields(CALL, tool='<img src=x onerror="window.pwned=1">'), True),
 ]
 
 # Values the mutations put in place of a field: each is a limit, a type confusion or an edge.
 ODD_VALUES: list[Any] = [
     None, True, False, -1, 0, 1, 2.5, 3.0, MAX_COUNT, MAX_COUNT + 1, float(MAX_COUNT), 10**400, "", " ",
     "\x1f", "\ufeff", "x" * 70, "a\u2028b", [], {}, [[[]]], {"input_audio_tokens": 1}, "turn", "session",
-    "session_open", "s" * (MAX_STREAM_ID_CHARS + 1),
+    "session_open", "s" * (MAX_STREAM_ID_CHARS + 1), "tool_call", "running", "failed", "action",
 ]  # fmt: skip
 
 
@@ -183,7 +238,7 @@ def mutations(count: int = 400, seed: int = 33) -> list[str]:
     rng = random.Random(seed)
     texts = []
     for _ in range(count):
-        record = json.loads(json.dumps(rng.choice([TURN, SESSION, OPENED])))
+        record = json.loads(json.dumps(rng.choice([TURN, SESSION, OPENED, CALL])))
         for _ in range(rng.randint(1, 3)):
             target = (
                 record["usage"]
@@ -208,6 +263,8 @@ def python_view(text: str) -> list[Any] | None:
         record: Record = parse_record(text)
     except BadRecord:
         return None
+    if isinstance(record, ToolCallRecord):
+        return ["tool_call", *[getattr(record, name) for name in TOOL_CALL_FIELDS]]
     view: list[Any] = [record.agent_id, record.provider, record.session]
     if isinstance(record, SessionOpenRecord):
         return ["session_open", *view]
@@ -226,15 +283,28 @@ def python_view(text: str) -> list[Any] | None:
     return ["turn", *view, *details, tokens]
 
 
-PAGE_VIEW = """
-(texts) => texts.map((text) => {
+TOOL_CALL_FIELDS = (
+    "agent_id",
+    "request_id",
+    "tool",
+    "kind",
+    "arguments",
+    "state",
+    "progress",
+    "elapsed_s",
+    "error",
+)
+
+PAGE_VIEW = f"""
+(texts) => texts.map((text) => {{
   const r = window.bycRecords.parseRecord(text);
   if (r === null) return null;
+  if (r.record === "tool_call") return ["tool_call", ...{json.dumps(TOOL_CALL_FIELDS)}.map((k) => r[k])];
   const view = [r.agent_id, r.provider, r.session];
   if (r.record === "session_open") return ["session_open", ...view];
   if (r.record === "session") return ["session", ...view, r.billed_s, r.turns, r.close_reason, r.tokens];
   return ["turn", ...view, r.turn, r.outcome, r.first_audio_ms, r.reply_ms, r.reason, r.stream_id, r.tokens];
-})
+}})
 """
 
 

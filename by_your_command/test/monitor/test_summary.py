@@ -8,10 +8,25 @@ from typing import Any
 import pytest
 
 from by_your_command.agents.events import Usage
-from by_your_command.agents.metrics import SessionMetrics, SessionOpenedMetrics, TurnMetrics
+from by_your_command.agents.metrics import SessionMetrics, SessionOpenedMetrics, ToolCallMetrics, TurnMetrics
 from by_your_command.monitor.cost import Prices, estimate_cost
-from by_your_command.monitor.records import BadRecord, SessionOpenRecord, Tokens, TurnRecord, parse_record
-from by_your_command.monitor.summary import MAX_AGENTS, OK, WARN, AgentSummary, session_state
+from by_your_command.monitor.records import (
+    BadRecord,
+    SessionOpenRecord,
+    Tokens,
+    ToolCallRecord,
+    TurnRecord,
+    parse_record,
+)
+from by_your_command.monitor.summary import (
+    MAX_ACTIVE_CALLS,
+    MAX_AGENTS,
+    OK,
+    RECENT_CALLS,
+    WARN,
+    AgentSummary,
+    session_state,
+)
 
 pytestmark = pytest.mark.unit
 
@@ -224,3 +239,161 @@ def test_cost_prices_tokens_per_kind_cached_input_and_session_minutes() -> None:
     assert estimate_cost(tokens, 90.0, Prices()) == 0.0
     with pytest.raises(ValueError, match="input_audio"):
         Prices(input_audio=-1.0)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def call(
+    request_id: str,
+    state: str = "running",
+    progress: str = "",
+    elapsed_s: float = 0.0,
+    error: str = "",
+    tool: str = "go_to",
+    agent: str = "robot",
+) -> str:
+    record = ToolCallMetrics(
+        agent, request_id, tool, "action", '{"place": "kitchen"}', state, progress, elapsed_s, error
+    )
+    return json.dumps(record.as_dict())
+
+
+def test_a_tool_call_record_is_read_back() -> None:
+    assert parse_record(call("robot-1-3", "failed", "1.5 m left", 4.25, "goal aborted")) == ToolCallRecord(
+        "robot",
+        "robot-1-3",
+        "go_to",
+        "action",
+        '{"place": "kitchen"}',
+        "failed",
+        "1.5 m left",
+        4.25,
+        "goal aborted",
+    )
+
+
+@pytest.mark.parametrize(
+    ("change", "why"),
+    [
+        ({"state": "exploded"}, "state: expected one of running"),
+        ({"kind": "rocket"}, "kind: expected one of action"),
+        ({"request_id": ""}, "request_id"),
+        ({"request_id": "r" * 201}, "request_id"),
+        ({"elapsed_s": -1}, "elapsed_s"),
+        ({"arguments": {"place": "kitchen"}}, "arguments"),
+        ({"tool": None}, "tool"),
+    ],
+)
+def test_a_bad_tool_call_record_is_refused_with_a_reason(change: dict[str, Any], why: str) -> None:
+    with pytest.raises(BadRecord, match=why):
+        parse_record(json.dumps({**json.loads(call("r1")), **change}))
+
+
+def test_active_calls_show_their_latest_progress_and_leave_when_they_end() -> None:
+    clock = Clock()
+    summary = AgentSummary({}, clock=clock)
+    summary.feed(call("r1"))
+    clock.now += 1.0
+    summary.feed(call("r2", tool="dock"))
+    clock.now += 4.0
+    summary.feed(call("r1", progress="distance_remaining 2.4", elapsed_s=5.0))
+    clock.now += 2.5  # no record since: the running call's time still goes on
+    agent = summary.snapshot()["agents"][0]
+    assert agent["active_calls"] == [
+        {
+            "request_id": "r1",
+            "tool": "go_to",
+            "kind": "action",
+            "arguments": '{"place": "kitchen"}',
+            "state": "running",
+            "progress": "distance_remaining 2.4",
+            "elapsed_s": 7.5,
+            "age_s": 2.5,
+        },
+        {
+            "request_id": "r2",
+            "tool": "dock",
+            "kind": "action",
+            "arguments": '{"place": "kitchen"}',
+            "state": "running",
+            "progress": "",
+            "elapsed_s": 6.5,
+            "age_s": 6.5,
+        },
+    ]
+    assert (agent["recent_calls"], agent["call_outcomes"]) == ([], {})
+
+    summary.feed(call("r1", "succeeded", elapsed_s=8.0))
+    clock.now += 1.0
+    summary.feed(call("r2", "failed", elapsed_s=8.6, error="goal aborted", tool="dock"))
+    summary.feed(call("r1", progress="late feedback", elapsed_s=7.9))  # after its end: not running again
+    agent = summary.snapshot()["agents"][0]
+    assert agent["active_calls"] == []
+    assert [
+        (c["request_id"], c["state"], c["elapsed_s"], c["error"], c["age_s"]) for c in agent["recent_calls"]
+    ] == [
+        ("r2", "failed", 8.6, "goal aborted", 0.0),  # newest first
+        ("r1", "succeeded", 8.0, "", 1.0),
+    ]
+    assert agent["call_outcomes"] == {"failed": 1, "succeeded": 1}
+    assert agent["calls_late"] == 1
+    # A call refused before it ran ends without ever running.
+    summary.feed(call("r3", "refused", error="the robot is asleep"))
+    assert summary.snapshot()["agents"][0]["recent_calls"][0]["state"] == "refused"
+
+
+def test_calls_are_bounded_however_many_request_ids_come() -> None:
+    clock = Clock()
+    summary = AgentSummary({}, clock=clock)
+    for index in range(MAX_ACTIVE_CALLS):
+        summary.feed(call(f"flood-{index}"))
+    summary.feed(call("flood-0", progress="still here"))  # a fresh report: no longer the most silent
+    for index in range(MAX_ACTIVE_CALLS, MAX_ACTIVE_CALLS + 10):
+        summary.feed(call(f"flood-{index}"))
+    active = {c["request_id"] for c in summary.snapshot()["agents"][0]["active_calls"]}
+    assert len(active) == MAX_ACTIVE_CALLS and "flood-1" not in active  # the longest silent went first
+    assert "flood-0" in active and f"flood-{MAX_ACTIVE_CALLS + 9}" in active
+    for index in range(1000):
+        summary.feed(call(f"more-{index}"))
+    for index in range(RECENT_CALLS + 5):
+        summary.feed(call(f"done-{index}", "succeeded"))
+    agent = summary.snapshot()["agents"][0]
+    assert len(agent["active_calls"]) == MAX_ACTIVE_CALLS
+    assert agent["calls_evicted"] == 1010
+    assert len(agent["recent_calls"]) == RECENT_CALLS
+    assert agent["recent_calls"][0]["request_id"] == f"done-{RECENT_CALLS + 4}"
+    assert agent["call_outcomes"] == {"succeeded": RECENT_CALLS + 5}  # counted, though not all kept
+
+
+def test_an_agent_that_stops_leaves_no_call_running() -> None:
+    summary = AgentSummary({}, clock=Clock())
+    summary.feed(call("r1"))
+    summary.feed(closed(1, 3.0, "pause of 2 s"))  # a session closes: the goal runs on
+    assert len(summary.snapshot()["agents"][0]["active_calls"]) == 1
+    summary.feed(closed(2, 3.0, "agent stopped"))
+    agent = summary.snapshot()["agents"][0]
+    assert (agent["active_calls"], agent["calls_unfinished"]) == ([], 1)
+
+
+def test_diagnostics_say_what_runs_and_how_the_last_call_ended() -> None:
+    clock = Clock()
+    summary = AgentSummary({}, clock=clock)
+    summary.feed(turn(1, 1))
+    summary.feed(call("r1", progress="distance_remaining 2.4", elapsed_s=3.0))
+    summary.feed(call("r0", "timeout", elapsed_s=10.0, error="no answer from /dock", tool="dock"))
+    report = {report.name: report for report in summary.reports()}["agent robot"]
+    assert report.level == OK  # a robot action that failed is the robot's news, not the agent's fault
+    assert "1 robot action(s) running" in report.message
+    assert report.values["calls_active"] == "1"
+    assert report.values["call.r1"] == "go_to running 3.0 s, distance_remaining 2.4"
+    assert report.values["last_call"] == "dock timeout after 10.0 s: no answer from /dock"
+    assert report.values["call_outcome.timeout"] == "1"
+    assert not any(key in report.values for key in ("active_calls", "recent_calls", "call_outcomes"))
+    # The summary topic carries them as JSON.
+    assert json.loads(json.dumps(summary.snapshot()))["agents"][0]["active_calls"][0]["request_id"] == "r1"

@@ -130,6 +130,7 @@ class GeminiLiveProvider:
         self._session: Any = None  # genai.live.AsyncSession (typed Any: 2.33 and 3.x differ)
         self._events = EventStream(self.config.event_queue_size)
         self._translator = EventTranslator(audio_out=True, text_from_transcription=False)
+        self._long_running: frozenset[str] = frozenset()  # NON_BLOCKING tools of this session
         self._reader: asyncio.Task[None] | None = None
         self._closed = False
         self._in_activity = False  # between our activityStart and activityEnd
@@ -143,6 +144,7 @@ class GeminiLiveProvider:
             raise ProviderClosed("a provider is one session: build a new one to reconnect")
         text_from_transcription = not setup.audio_out and self.config.text_replies == "transcription"
         self._translator = EventTranslator(setup.audio_out, text_from_transcription)
+        self._long_running = frozenset(tool.name for tool in setup.tools if tool.long_running)
         client = self._client()
         # Resume only the conversation this session continues (a reset starts a new one, and the
         # store drops the old one's handle); an empty history has nothing to continue.
@@ -334,11 +336,31 @@ class GeminiLiveProvider:
                 parsed = None
             content = parsed if isinstance(parsed, dict) else {"output": result.output}
             name = self._translator.call_name(result.call_id) or ""
-            responses.append(types.FunctionResponse(id=result.call_id, name=name, response=content))
+            response = types.FunctionResponse(id=result.call_id, name=name, response=content)
+            if name in self._long_running:  # NON_BLOCKING: the model speaks of it once it is idle
+                response.scheduling = types.FunctionResponseScheduling.WHEN_IDLE
+            responses.append(response)
         if not responses:
             return
         async with closing_on_failure(_SESSION):
             await session.send_tool_response(function_responses=responses)
+
+    async def send_tool_progress(self, call_id: str, text: str) -> None:
+        """A partial response of a NON_BLOCKING call (will_continue): heard silently, the call
+        stays open for its final response."""
+        session = self._live()
+        name = self._translator.call_name(call_id) or ""
+        if call_id in self._translator.cancelled_calls or name not in self._long_running:
+            return
+        progress = types.FunctionResponse(
+            id=call_id,
+            name=name,
+            response={"progress": text},
+            will_continue=True,
+            scheduling=types.FunctionResponseScheduling.SILENT,
+        )
+        async with closing_on_failure(_SESSION):
+            await session.send_tool_response(function_responses=[progress])
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         """activityStart: the server stops generating and keeps what it sent in its history (there
@@ -405,7 +427,9 @@ def _tools(tools: Sequence[ToolSpec]) -> types.ToolListUnion:
             name=tool.name,
             description=tool.description,
             parameters_json_schema=tool.parameters,
-            behavior=types.Behavior.BLOCKING,  # the model waits for the robot's verdict
+            # A robot action runs on while the conversation goes on; anything else is answered
+            # at once (the robot's verdict), and the model waits for it.
+            behavior=types.Behavior.NON_BLOCKING if tool.long_running else types.Behavior.BLOCKING,
         )
         for tool in tools
     ]

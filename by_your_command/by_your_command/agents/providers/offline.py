@@ -8,6 +8,12 @@ matched against the same spoken forms. A command becomes a `robot_command` tool 
 (tool mode), so the runtime publishes it on `response_cmd` and hands back the command processor's
 verdict; the reply to that verdict is spoken with espeak-ng: an acknowledgement or the refusal.
 
+The robot's other tools are heard by their declared phrases (ToolSpec.spoken: "go to the kitchen"
+-> go_to {"place": "kitchen"}), which the recognizer takes as forms judged like commands, so chat
+with a tool's words in it is still not caught. A phrase heard becomes that tool's call; its result
+(offline_replies.py) is answered when it comes, however many turns later for an action: "Done.",
+the service's own message, or the failure said plainly as a refusal, never as a success.
+
 The runtime's session model is kept: a "session" is the loaded engine, which the factory shares
 between sessions, so connect and close cost nothing after the first load. Decoding and synthesis
 run in threads, each with its own deadline: a stuck decoder fails one reply, never the loop.
@@ -20,7 +26,7 @@ import itertools
 import json
 import logging
 import uuid
-from collections import deque
+from collections import Counter, deque
 from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -37,16 +43,28 @@ from by_your_command.agents.events import (
     ToolCall,
     UserTranscript,
 )
-from by_your_command.agents.provider import ProviderClosed, ProviderFailure, SessionSetup, ToolResult
+from by_your_command.agents.provider import (
+    ProviderClosed,
+    ProviderFailure,
+    SessionSetup,
+    ToolResult,
+    ToolSpec,
+)
 from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.offline_config import OfflineConfig
 from by_your_command.agents.providers.offline_engine import Engine, LocalEngine
-from by_your_command.agents.providers.offline_replies import parse_tool_result, refusal
+from by_your_command.agents.providers.offline_replies import (
+    late_result,
+    parse_tool_result,
+    refusal,
+    success,
+)
 from by_your_command.agents.providers.offline_text import rejected
 from by_your_command.agents.robot_tool import TOOL_NAME
 from by_your_command.offline.recognizer import Recognition
 from by_your_command.offline.replies import acknowledgement, answer
 from by_your_command.offline.spoken import RecognitionKind
+from by_your_command.offline.tool_phrases import PhraseLimits, select_phrases, tool_call
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +95,11 @@ class OfflineStats:
     speak_failures: int = 0
     interrupted: int = 0
     ignored_images: int = 0
+    tool_calls: int = 0  # calls of the robot's own tools (robot_command calls are `commands`)
+    unknown_tools: int = 0  # a phrase heard for a tool this session was not given (not caught)
+    tool_progress: int = 0  # progress notes of long-running calls (nothing is said of them)
+    tool_phrases_left_out: int = 0  # declared phrases the recognizer does not take (logged)
+    calls_forgotten: int = 0  # open calls beyond the bound: their results are answered plainly
 
 
 @dataclass(frozen=True)
@@ -90,8 +113,14 @@ class _Typed:
 
 
 @dataclass(frozen=True)
+class _Call:
+    tool: str
+    command: str  # robot_command's command ("" for the robot's other tools)
+
+
+@dataclass(frozen=True)
 class _Verdict:
-    command: str  # what we called the tool with ("" for a call id we never made)
+    call: _Call | None  # the call it answers (None for a call id we never made, or forgot)
     output: str
 
 
@@ -129,7 +158,7 @@ class OfflineProvider:
         self._tag = uuid.uuid4().hex[:8]  # ids stay unique across sessions
         self._serial = itertools.count(1)
         self._replies = self.config.replies()
-        self._calls: dict[str, str] = {}  # call id -> the command it sent, until its verdict is back
+        self._calls: dict[str, _Call] = {}  # call id -> what it asked for, until its result is back
 
     # ---- session ----------------------------------------------------------------------------
     async def connect(self, setup: SessionSetup) -> None:
@@ -143,8 +172,27 @@ class OfflineProvider:
             raise ProviderFailure(ProviderError("offline_engine_unavailable", message, fatal=True)) from None
         if self._closed:
             raise ProviderClosed("closed while the engine loaded")
+        try:  # a new set of tool phrases rebuilds the recognizer's search, off the loop
+            left_out = await asyncio.to_thread(self._hear_tools, setup.tools)
+            self.stats.tool_phrases_left_out = sum(left_out.values())
+        except (ValueError, RuntimeError, OSError) as error:
+            # Commands, questions and the tools typed or heard before still work: not fatal.
+            log.exception("offline provider: the tools' phrases could not be added")
+            await self._emit(
+                ProviderError("offline_tools_unheard", f"the tools' phrases are not heard: {error}")
+            )
+        if self._closed:
+            raise ProviderClosed("closed while the tools' phrases were added")
         self._setup = setup
         self._worker = asyncio.ensure_future(self._work())
+
+    def _hear_tools(self, tools: Sequence[ToolSpec]) -> Counter[str]:
+        """Blocking (a catalog may declare thousands of phrases): the engine hears the tools'
+        phrases, selected and bounded; returns every phrase left out, by reason."""
+        limits = PhraseLimits(self.config.max_tool_phrases, self.config.max_tool_phrase_words)
+        declared = [(tool.name, said, arguments) for tool in tools for said, arguments in tool.spoken]
+        selection = select_phrases(declared, limits)
+        return selection.cut + self._engine.use_tools(selection.phrases)
 
     async def close(self) -> None:
         if self._closed:
@@ -200,7 +248,11 @@ class OfflineProvider:
     async def send_tool_results(self, results: Sequence[ToolResult]) -> None:
         self._live()
         for result in results:
-            self._jobs.put_nowait(_Verdict(self._calls.pop(result.call_id, ""), result.output))
+            self._jobs.put_nowait(_Verdict(self._calls.pop(result.call_id, None), result.output))
+
+    async def send_tool_progress(self, call_id: str, text: str) -> None:
+        self._live()
+        self.stats.tool_progress += 1  # nothing is said: the result is, when the action ends
 
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         self._live()
@@ -231,13 +283,17 @@ class OfflineProvider:
                 await self._emit(ResponseDone(response_id, ResponseStatus.FAILED, reason=str(error)[:200]))
 
     async def _run(self, job: _Job, response_id: str) -> None:
+        if isinstance(job, _Typed) and (output := late_result(job.text)) is not None:
+            job = _Verdict(None, output)  # another session's action ended: its result is answered
         if isinstance(job, _Verdict):
             verdict = parse_tool_result(job.output)
-            if verdict.accepted:
-                # Our own command, not the verdict's echo of it: that text came from outside.
-                text = acknowledgement(job.command, self._replies) if job.command else "Done."
-            else:
+            command = job.call.command if job.call is not None else ""
+            if not verdict.accepted:
                 text = refusal(self.config.refusal_text, verdict.reason)
+            elif command:  # our own command, not the verdict's echo of it: that text came from outside
+                text = acknowledgement(command, self._replies)
+            else:
+                text = success(verdict.message)
             await self._say(response_id, text)
             return
         if isinstance(job, _Typed):
@@ -292,16 +348,19 @@ class OfflineProvider:
     async def _answer(self, understood: Recognition, response_id: str) -> None:
         setup = self._live()
         kind = understood.kind
+        if kind is RecognitionKind.TOOL:
+            name, arguments = tool_call(understood.canonical)
+            if any(tool.name == name for tool in setup.tools):
+                self.stats.tool_calls += 1
+                await self._call(response_id, _Call(name, ""), arguments)
+                return
+            self.stats.unknown_tools += 1  # heard for another session's tools: not this one's to call
+            kind = RecognitionKind.REJECTED
         if kind in (RecognitionKind.COMMAND, RecognitionKind.PHRASE):
             self.stats.commands += 1
             command = understood.canonical
             if any(tool.name == TOOL_NAME for tool in setup.tools):
-                call_id = f"{response_id}-call"
-                if len(self._calls) < _IDS_KEPT:  # the runtime answers every call; bounded anyway
-                    self._calls[call_id] = command
-                arguments = json.dumps({"command": command})
-                await self._emit(ToolCall(response_id, call_id, TOOL_NAME, arguments))
-                await self._emit(ResponseDone(response_id, ResponseStatus.COMPLETED))
+                await self._call(response_id, _Call(TOOL_NAME, command), json.dumps({"command": command}))
             elif not setup.audio_out:  # a command agent: its text replies are published as commands
                 await self._emit(AssistantText(response_id, f"{response_id}-item", command, final=True))
                 await self._emit(ResponseDone(response_id, ResponseStatus.COMPLETED))
@@ -314,6 +373,16 @@ class OfflineProvider:
             return
         self.stats.not_caught += 1
         await self._say(response_id, self.config.not_heard_text)
+
+    async def _call(self, response_id: str, call: _Call, arguments: str) -> None:
+        """The reply that calls a tool: the call, done. Its result is answered when it comes."""
+        call_id = f"{response_id}-call"
+        if len(self._calls) >= _IDS_KEPT:  # the runtime answers every call; bounded anyway
+            self._calls.pop(next(iter(self._calls)))  # the oldest: its result is answered plainly
+            self.stats.calls_forgotten += 1
+        self._calls[call_id] = call
+        await self._emit(ToolCall(response_id, call_id, call.tool, arguments))
+        await self._emit(ResponseDone(response_id, ResponseStatus.COMPLETED))
 
     async def _say(self, response_id: str, text: str) -> None:
         """Speak `text` as one reply: audio chunks, the transcript, done (or done only when the

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 from by_your_command.offline.replies import NOT_CAUGHT, RepliesConfig
 from by_your_command.offline.speaker import SpeakerConfig
+from by_your_command.offline.tool_phrases import PhraseLimits
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,11 @@ class OfflineConfig:
     speak_timeout_s: float = 10.0  # one reply's synthesis (espeak-ng is killed after it)
     audio_chunk_ms: int = 200  # reply audio is emitted in chunks of this length
     event_queue_size: int = 256  # events the runtime has not read yet; the worker waits beyond it
+    # The robot's tools' spoken phrases the recognizer takes (more are left out, counted and
+    # logged), and the words in one: each phrase is a form to search, and Moonshine scores forms of
+    # at most 16 tokens.
+    max_tool_phrases: int = 512
+    max_tool_phrase_words: int = 8
 
     def __post_init__(self) -> None:
         if not self.robot_name.strip():
@@ -44,6 +50,7 @@ class OfflineConfig:
             raise ValueError("max_text_chars and event_queue_size must be >= 1")
         if not 10 <= self.audio_chunk_ms <= 2000:
             raise ValueError(f"audio_chunk_ms must be within [10, 2000], got {self.audio_chunk_ms}")
+        PhraseLimits(self.max_tool_phrases, self.max_tool_phrase_words)  # its own checks
         self.speaker()  # its own checks (a voice name espeak-ng can take), at start, not at the first reply
         try:
             self.refusal_text.format(reason="r")

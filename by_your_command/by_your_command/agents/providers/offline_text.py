@@ -1,8 +1,9 @@
 """Typed prompts (`prompt_text`) for the offline agent: the same meanings the recognizer hears,
 without a recognizer.
 
-A text turn is matched whole against the spoken forms generated from the command vocabulary
-(offline/spoken.py), so "look up" typed means what "look up" said means. A command typed in its
+A text turn is matched whole against the spoken forms generated from the command vocabulary and
+the session's tool phrases (offline/spoken.py), so "look up" typed means what "look up" said
+means, and "go to the kitchen" calls the tool whose phrase it is. A command typed in its
 normal form ("pan@left") is accepted too; a bare bearing ("right") is not, for the reason the
 spoken vocabulary leaves it out: alone it is agreement far more often than a command.
 """
@@ -10,6 +11,7 @@ spoken vocabulary leaves it out: alone it is agreement far more often than a com
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 
 from by_your_command.commands.grammar import CommandGrammar
 from by_your_command.commands.vocabulary import Vocabulary
@@ -19,6 +21,7 @@ from by_your_command.offline.spoken import (
     SpokenVocabularyConfig,
     build_spoken_forms,
 )
+from by_your_command.offline.tool_phrases import ToolPhrase
 
 _NOT_WORDS = re.compile(r"[^a-z' ]+")
 _EDGE = " \t.,;:!?\"'`"
@@ -32,9 +35,15 @@ def rejected(text: str, reason: str) -> Recognition:
 
 
 class TextMatcher:
-    def __init__(self, vocabulary: Vocabulary, spoken: SpokenVocabularyConfig | None = None) -> None:
+    def __init__(
+        self,
+        vocabulary: Vocabulary,
+        spoken: SpokenVocabularyConfig | None = None,
+        tools: Sequence[ToolPhrase] = (),
+    ) -> None:
+        """`tools`: the tool phrases the recognizer hears (OfflineRecognizer.tools), typed the same."""
         config = spoken or SpokenVocabularyConfig()
-        self._forms = {form.words: form for form in build_spoken_forms(vocabulary, config)}
+        self._forms = {form.words: form for form in build_spoken_forms(vocabulary, config, tools)}
         self._phrases = frozenset(config.phrases)
         self._grammar = CommandGrammar(vocabulary)
 

@@ -316,6 +316,11 @@ class OpenAIRealtimeProvider:
         if results:
             await self._request_reply()
 
+    async def send_tool_progress(self, call_id: str, text: str) -> None:
+        """Realtime has no partial function output: the progress is a note in the conversation
+        (no response.create); the call's function_call_output comes when it ends."""
+        await self.add_context(text)
+
     async def interrupt(self, response_id: str, item_id: str, played_ms: int) -> None:
         connection = self._live()
         async with closing_on_failure(_SESSION):

@@ -12,6 +12,19 @@
   const MAX_TEXT = 500;
   const MAX_FRAME_CHARS = 8 * 1024 * 1024; // base64 of a 6 MB image: far above a forwarded frame
   const MAX_TRACKED_STREAMS = 64; // replies followed from their turn record / first status to their end
+  const MAX_ACTIVE_SHOWN = 32; // running robot tool calls per agent (the summary keeps as many)
+  const RECENT_SHOWN = 10; // ended robot tool calls, all agents together, newest first
+  // How a robot tool call ended, for the eye: done, stopped on purpose, or not done (marked).
+  const OUTCOMES = {
+    succeeded: ["good", "✓"],
+    published: ["good", "✓"],
+    cancelled: ["stopped", "■"],
+    failed: ["bad", "✗"],
+    rejected: ["bad", "✗"],
+    timeout: ["bad", "✗"],
+    refused: ["bad", "✗"],
+    unavailable: ["bad", "✗"],
+  };
 
   // topic -> [type, options]; every topic the page shows (none of them audio).
   const SUBSCRIPTIONS = {
@@ -49,6 +62,8 @@
     failedAttempts: 0,
     playing: new Map(), // stream_id -> true: replies seen playing whose end is still to come
     turnsByStream: new Map(), // stream_id -> the turn record that named it (agents that send stream_id)
+    callsStarted: new Map(), // request_id -> true: robot tool calls whose start line is shown
+    callsAt: 0, // performance.now() when the robot actions panel was drawn (its times count on from there)
   };
 
   // The token is read once and taken out of the address bar (and so out of bookmarks, screenshots
@@ -201,6 +216,8 @@
         if (record.stream_id) remember(state.turnsByStream, record.stream_id, { agent, record, at: performance.now() });
       } else if (record.record === "session_open") {
         addLine("session", `${agent}: session ${record.session} open`);
+      } else if (record.record === "tool_call") {
+        callLine(agent, record);
       } else {
         addLine("session", `${agent}: session closed after ${record.billed_s.toFixed(1)} s billed (${text(record.close_reason, 120)})`);
       }
@@ -248,6 +265,106 @@
     },
   };
 
+  // --- robot actions ------------------------------------------------------------------------
+
+  function outcome(state) {
+    return Object.prototype.hasOwnProperty.call(OUTCOMES, state) ? OUTCOMES[state] : ["bad", "?"];
+  }
+
+  function seconds(value) {
+    return isNumber(value) ? `${value.toFixed(1)} s` : "?";
+  }
+
+  function ago(value) {
+    if (!isNumber(value)) return "?";
+    return value < 120 ? `${Math.round(value)} s ago` : `${Math.round(value / 60)} min ago`;
+  }
+
+  function ended(call) {
+    const [, mark] = outcome(call.state);
+    const error = text(call.error, 200);
+    return `${mark} ${text(call.state, 20)}${error ? `: ${error}` : ""}`;
+  }
+
+  // The transcript says when a call starts and how it ends (its progress is in the panel).
+  function callLine(agent, record) {
+    const what = `${agent}: ${text(record.tool, 64)} ${text(record.arguments, 200)}`;
+    if (record.state === "running") {
+      if (state.callsStarted.has(record.request_id)) return;
+      remember(state.callsStarted, record.request_id, true);
+      addLine("action", `${what} started`);
+      return;
+    }
+    state.callsStarted.delete(record.request_id);
+    const after = record.elapsed_s > 0 ? ` after ${seconds(record.elapsed_s)}` : "";
+    const error = record.error ? `: ${text(record.error, 200)}` : "";
+    const [kind, mark] = outcome(record.state);
+    addLine("action", `${what} ${mark} ${record.state}${after}${error}`, { outcome: kind });
+  }
+
+  function listOf(value, limit) {
+    return Array.isArray(value) ? value.slice(0, limit).filter((item) => item !== null && typeof item === "object") : [];
+  }
+
+  function total(agents, key) {
+    return agents.reduce((sum, agent) => sum + (Number.isInteger(agent[key]) && agent[key] > 0 ? agent[key] : 0), 0);
+  }
+
+  function showCalls(agents) {
+    fresh("actions-summary", "active-calls", "recent-calls");
+    state.callsAt = performance.now();
+    const active = [];
+    const recent = [];
+    for (const agent of agents) {
+      const id = text(agent.agent_id, 40);
+      for (const call of listOf(agent.active_calls, MAX_ACTIVE_SHOWN)) active.push([id, call]);
+      for (const call of listOf(agent.recent_calls, RECENT_SHOWN)) recent.push([id, call]);
+    }
+    const age = (call) => (isNumber(call.age_s) ? call.age_s : Infinity);
+    recent.sort((a, b) => age(a[1]) - age(b[1]));
+    const rows = $("active-calls").tBodies[0];
+    rows.replaceChildren();
+    for (const [id, call] of active) {
+      const row = rows.insertRow();
+      cell(row, id);
+      cell(row, text(call.tool, 64), "state-running");
+      cell(row, text(call.arguments, 200));
+      cell(row, text(call.progress, 200) || "–");
+      cell(row, seconds(call.elapsed_s), "elapsed");
+      if (isNumber(call.elapsed_s)) row.lastChild.dataset.base = String(call.elapsed_s);
+    }
+    const ends = $("recent-calls").tBodies[0];
+    ends.replaceChildren();
+    for (const [id, call] of recent.slice(0, RECENT_SHOWN)) {
+      const row = ends.insertRow();
+      cell(row, id);
+      cell(row, text(call.tool, 64));
+      cell(row, text(call.arguments, 200));
+      cell(row, ended(call), `outcome-${outcome(call.state)[0]}`);
+      cell(row, seconds(call.elapsed_s));
+      cell(row, ago(call.age_s), "ago");
+      if (isNumber(call.age_s)) row.lastChild.dataset.base = String(call.age_s);
+    }
+    const notes = [];
+    const evicted = total(agents, "calls_evicted");
+    const unfinished = total(agents, "calls_unfinished");
+    if (evicted > 0) notes.push(`${evicted} forgotten (too many running at once)`);
+    if (unfinished > 0) notes.push(`${unfinished} never ended (their agent stopped)`);
+    const counts = active.length || recent.length ? `${active.length} running, ${recent.length} recently ended` : "no robot action yet";
+    $("actions-summary").textContent = [counts, ...notes].join("; ");
+  }
+
+  // Times go on between summaries (published only when something changed); not while stale.
+  function tickCalls() {
+    const since = (performance.now() - state.callsAt) / 1000;
+    if ($("active-calls").dataset.stale === undefined) {
+      for (const td of $("active-calls").querySelectorAll("td.elapsed[data-base]")) td.textContent = seconds(Number(td.dataset.base) + since);
+    }
+    if ($("recent-calls").dataset.stale === undefined) {
+      for (const td of $("recent-calls").querySelectorAll("td.ago[data-base]")) td.textContent = ago(Number(td.dataset.base) + since);
+    }
+  }
+
   // --- agents panel -------------------------------------------------------------------------
 
   function showSummary(summary) {
@@ -259,8 +376,9 @@
     $("agents-connected").textContent = `${connected} agent(s) connected to the bridge${invalid}`;
     const agents = $("agents").tBodies[0];
     agents.replaceChildren();
-    for (const agent of Array.isArray(summary.agents) ? summary.agents.slice(0, 64) : []) {
-      if (agent === null || typeof agent !== "object") continue;
+    const shown = listOf(summary.agents, 64);
+    showCalls(shown);
+    for (const agent of shown) {
       const row = agents.insertRow();
       const stateName = text(agent.state, 20);
       let stateLabel = stateName;
@@ -528,5 +646,6 @@
   }
 
   setupControls();
+  window.setInterval(tickCalls, 1000);
   connect();
 })();

@@ -9,6 +9,10 @@ window.bycRecords = (() => {
   const MAX_NAME_CHARS = 64;
   const MAX_REASON_CHARS = 200;
   const MAX_STREAM_ID_CHARS = 200;
+  const MAX_REQUEST_ID_CHARS = 200;
+  const MAX_ARGUMENTS_CHARS = 200;
+  const TOOL_KINDS = ["action", "service", "topic", "command"];
+  const TOOL_STATES = ["running", "succeeded", "failed", "rejected", "cancelled", "timeout", "refused", "unavailable", "published"];
   const MAX_COUNT = 1e12;
   const MAX_DEPTH = 8;
   const USAGE_FIELDS = {
@@ -90,6 +94,35 @@ window.bycRecords = (() => {
     return value;
   }
 
+  function requestId(data) {
+    const value = get(data, "request_id");
+    if (typeof value !== "string" || value === "" || longerThan(value, MAX_REQUEST_ID_CHARS)) {
+      throw new BadRecord(`request_id: expected a string of 1..${MAX_REQUEST_ID_CHARS} characters`);
+    }
+    return value;
+  }
+
+  function oneOf(data, key, allowed) {
+    const value = get(data, key);
+    if (typeof value !== "string" || !allowed.includes(value)) throw new BadRecord(`${key}: expected one of ${allowed.join(", ")}`);
+    return value;
+  }
+
+  function toolCall(data, agentId) {
+    return {
+      record: "tool_call",
+      agent_id: agentId,
+      request_id: requestId(data),
+      tool: name(data, "tool", true),
+      kind: oneOf(data, "kind", TOOL_KINDS),
+      arguments: textField(data, "arguments", MAX_ARGUMENTS_CHARS),
+      state: oneOf(data, "state", TOOL_STATES),
+      progress: optionalText(data, "progress", MAX_REASON_CHARS),
+      elapsed_s: number(data, "elapsed_s"),
+      error: optionalText(data, "error", MAX_REASON_CHARS),
+    };
+  }
+
   function count(data, key) {
     const value = get(data, key);
     if (typeof value !== "number" || !Number.isInteger(value) || !(value >= 0 && value <= MAX_COUNT)) {
@@ -141,7 +174,9 @@ window.bycRecords = (() => {
     }
     if (tooDeep(data, 1)) throw new BadRecord(`nested deeper than ${MAX_DEPTH} levels`);
     const kind = get(data, "record");
-    const base = { agent_id: name(data, "agent_id", true), provider: name(data, "provider", false), session: count(data, "session") };
+    const agentId = name(data, "agent_id", true);
+    if (kind === "tool_call") return toolCall(data, agentId); // carries no provider nor session
+    const base = { agent_id: agentId, provider: name(data, "provider", false), session: count(data, "session") };
     if (kind === "session_open") return { record: kind, ...base };
     const usage = tokens(has(data, "usage") ? data.usage : {});
     if (kind === "turn") {
@@ -167,7 +202,7 @@ window.bycRecords = (() => {
         tokens: usage,
       };
     }
-    throw new BadRecord("record must be 'turn', 'session' or 'session_open'");
+    throw new BadRecord("record must be 'turn', 'session', 'session_open' or 'tool_call'");
   }
 
   // The record (normalised like records.py), or null for anything the bridge would not count.

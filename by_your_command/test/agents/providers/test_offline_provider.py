@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import selectors
 import subprocess
-from collections.abc import Callable, Coroutine
+from collections import Counter
+from collections.abc import Callable, Coroutine, Sequence
 from datetime import datetime
 from typing import Any, TypeVar
 
@@ -35,17 +37,19 @@ from by_your_command.agents.events import (
     UserTranscript,
 )
 from by_your_command.agents.inputs import UtteranceChunk
-from by_your_command.agents.provider import ProviderClosed, SessionSetup, ToolResult
+from by_your_command.agents.provider import ProviderClosed, SessionSetup, ToolResult, ToolSpec
 from by_your_command.agents.providers import offline_engine
 from by_your_command.agents.providers.offline import OfflineProvider
 from by_your_command.agents.providers.offline_config import OfflineConfig
 from by_your_command.agents.providers.offline_engine import LocalEngine
+from by_your_command.agents.robot_calls import call_result
 from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL, TOOL_NAME, result_json
-from by_your_command.agents.runtime import AgentRuntime
+from by_your_command.agents.runtime import LATE_RESULT_NOTE, AgentRuntime
 from by_your_command.audio.pcm import read_wav, resample
 from by_your_command.cli import byc
 from by_your_command.offline.recognizer import Recognition
 from by_your_command.offline.speaker import Speaker
+from by_your_command.offline.tool_phrases import ToolPhrase
 
 pytestmark = pytest.mark.unit
 T = TypeVar("T")
@@ -55,7 +59,32 @@ UTTERANCES = {
     "follow": "follow me",
     "time": "what time is it",
     "chat": "my grandmother baked a lovely cake for the neighbours yesterday",
+    "kitchen": "go to the kitchen",
+    "kitchen chat": "the kitchen is nice",
+    "boat": "I docked my boat",
 }
+# The robot's own tools, as the runtime offers them from the catalog (agents/runtime._robot_tool_spec).
+GO_TO = ToolSpec(
+    "go_to",
+    "Drive to a named place.",
+    {"type": "object", "properties": {"place": {"type": "string", "enum": ["kitchen", "charging dock"]}}},
+    long_running=True,
+    spoken=tuple(
+        (f"{verb} to the {place}", json.dumps({"place": place}))
+        for place in ("kitchen", "charging dock")
+        for verb in ("go", "drive")
+    ),
+)
+DOCK = ToolSpec(
+    "dock", "Dock.", {"type": "object", "properties": {}}, long_running=True, spoken=(("dock", "{}"),)
+)
+STATUS = ToolSpec(
+    "status",
+    "Report the status.",
+    {"type": "object", "properties": {}},
+    spoken=(("report your status", "{}"),),
+)
+ROBOT_TOOLS = SessionSetup("offline test", tools=(ROBOT_COMMAND_TOOL, GO_TO, DOCK, STATUS))
 REPLY_TIMEOUT_S = 120.0  # real time, 2 shared cores: only a hung engine ever gets near it
 
 
@@ -106,6 +135,9 @@ class SpyEngine:
 
     def say(self, text: str) -> tuple[bytes, int]:
         return self.inner.say(text)
+
+    def use_tools(self, phrases: Sequence[ToolPhrase]) -> Counter[str]:
+        return self.inner.use_tools(phrases)
 
 
 # --- helpers -----------------------------------------------------------------------------------
@@ -410,6 +442,211 @@ def test_an_interrupt_stops_the_reply_audio(engine: LocalEngine) -> None:
         await provider.send_text("who are you")
         after = await until_done(provider)
         assert audio_of(after) and after[-1].status is ResponseStatus.COMPLETED  # type: ignore[union-attr]
+        await provider.close()
+
+    run(scenario())
+
+
+# --- the robot's own tools (docs/offline.md) ------------------------------------------------------
+
+
+async def call_of(provider: OfflineProvider, text: str) -> ToolCall:
+    """The tool call a typed turn makes (its reply is the call and done, nothing said)."""
+    await provider.send_text(text)
+    events = await until_done(provider)
+    assert [type(event) for event in events] == [ToolCall, ResponseDone], events
+    [call] = of(events, ToolCall)
+    return call
+
+
+async def reply_to(provider: OfflineProvider, call_id: str, output: str) -> str:
+    await provider.send_tool_results([ToolResult(call_id, output)])
+    return spoken_text(await until_done(provider))
+
+
+def test_a_spoken_tool_phrase_is_that_tools_call_and_its_success_is_acknowledged(
+    engine: LocalEngine, speech: dict[str, bytes]
+) -> None:
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(), engine)
+        await provider.connect(ROBOT_TOOLS)
+        await say_turn(provider, speech["kitchen"])
+        events = await until_done(provider)
+        assert [type(event) for event in events] == [UserTranscript, ToolCall, ResponseDone]
+        assert of(events, UserTranscript)[0].text == "go to the kitchen"
+        [call] = of(events, ToolCall)
+        assert (call.name, json.loads(call.arguments)) == ("go_to", {"place": "kitchen"})
+        assert call.response_id == events[-1].response_id
+        said = await reply_to(provider, call.call_id, call_result("go_to", True, "succeeded", {}))
+        assert said == "Done."
+        assert provider.stats.tool_calls == 1 and provider.stats.commands == 0
+        await provider.close()
+
+    run(scenario())
+
+
+def test_chat_with_a_tools_words_is_not_caught(engine: LocalEngine, speech: dict[str, bytes]) -> None:
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(), engine)
+        await provider.connect(ROBOT_TOOLS)
+        for name in ("kitchen chat", "boat"):
+            await say_turn(provider, speech[name])
+            events = await until_done(provider)
+            assert of(events, ToolCall) == [], name
+            assert spoken_text(events) == "I did not catch that."
+        for text in ("the kitchen is nice", "I docked my boat", "go to the kitchen and make tea", "kitchen"):
+            await provider.send_text(text)
+            events = await until_done(provider)
+            assert of(events, ToolCall) == [] and spoken_text(events) == "I did not catch that.", text
+        assert provider.stats.not_caught == 6 and provider.stats.tool_calls == 0
+        await provider.close()
+
+    run(scenario())
+
+
+def test_typed_tool_phrases_are_calls_and_each_result_is_said_plainly(engine: LocalEngine) -> None:
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(), engine)
+        await provider.connect(ROBOT_TOOLS)
+        call = await call_of(provider, "Please drive to the charging dock!")
+        assert (call.name, json.loads(call.arguments)) == ("go_to", {"place": "charging dock"})
+        failed = call_result(
+            "go_to", False, "failed", error="the robot reported failure: the path is blocked"
+        )
+        assert await reply_to(provider, call.call_id, failed) == (
+            "I can't do that: the robot reported failure: the path is blocked."
+        )
+        # A service's own message is its reply (bounded, speakable); without one, "Done.".
+        call = await call_of(provider, "report your status")
+        assert call.name == "status" and json.loads(call.arguments) == {}
+        message = {"success": True, "message": "Battery at 80 percent <speak>" + "x" * 500}
+        said = await reply_to(provider, call.call_id, call_result("status", True, "succeeded", message))
+        assert said.startswith("Battery at 80 percent speak") and len(said) <= 161 and "<" not in said
+        call = await call_of(provider, "dock")
+        # Never dressed as success: only an explicit ok is one.
+        for output in (
+            json.dumps({"ok": "yes", "tool": "dock", "status": "succeeded"}),
+            call_result("dock", False, "cancelled", error=""),
+            json.dumps({"ok": False, "error": ["not", "text"]}),
+        ):
+            said = await reply_to(provider, call.call_id, output)
+            assert said.startswith("I can't do that:") and "Done" not in said, output
+        await provider.close()
+
+    run(scenario())
+
+
+def test_a_late_result_is_answered_when_it_comes_after_other_turns(engine: LocalEngine) -> None:
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(), engine, now=at_7_past_3)
+        await provider.connect(ROBOT_TOOLS)
+        going = await call_of(provider, "go to the kitchen")
+        await provider.send_text("what time is it")
+        assert spoken_text(await until_done(provider)) == "It is 3 07 PM."
+        look = await call_of(provider, "look up")
+        assert await reply_to(provider, look.call_id, result_json(True, "lookup", "")) == "Looking up."
+        await provider.send_tool_progress(going.call_id, "go_to in progress: distance_remaining 2.5")
+        await provider.send_tool_progress(going.call_id, "go_to in progress: distance_remaining 0.4")
+        assert provider.stats.tool_progress == 2  # nothing is said of progress
+        done = call_result("go_to", True, "succeeded", {"result": {}})
+        assert await reply_to(provider, going.call_id, done) == "Done."
+        assert provider._calls == {}  # every call answered: nothing left open
+        await provider.close()
+
+    run(scenario())
+
+
+def test_an_earlier_sessions_result_is_answered_from_the_runtimes_note(engine: LocalEngine) -> None:
+    """A robot action that ends after its session did reaches the next session as a note (a text
+    turn): it is answered like a result, not as chat."""
+
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(), engine)
+        await provider.connect(ROBOT_TOOLS)
+        for output, said in [
+            (call_result("go_to", True, "succeeded", {}), "Done."),
+            (
+                call_result("go_to", False, "cancelled", error="cancelled: stop"),
+                "I can't do that: cancelled: stop.",
+            ),
+        ]:
+            await provider.send_text(
+                LATE_RESULT_NOTE.format(tool="go_to", arguments='{"place": "kitchen"}', result=output)
+            )
+            assert spoken_text(await until_done(provider)) == said
+        await provider.close()
+
+    run(scenario())
+
+
+def test_open_calls_are_remembered_within_a_bound_and_a_forgotten_ones_result_still_answered(
+    engine: LocalEngine,
+) -> None:
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(), engine)
+        await provider.connect(ROBOT_TOOLS)
+        first = await call_of(provider, "look up")
+        for _ in range(64):  # never answered: the runtime would, this bound is for when it does not
+            await call_of(provider, "dock")
+        assert len(provider._calls) == 64 and provider.stats.calls_forgotten == 1
+        # The oldest was forgotten: its result is answered from the result alone.
+        assert await reply_to(provider, first.call_id, result_json(True, "lookup", "")) == "Done."
+        await provider.close()
+
+    run(scenario())
+
+
+def test_the_recognizer_is_rebuilt_only_when_the_phrases_change(engine: LocalEngine) -> None:
+    async def scenario() -> None:
+        first = OfflineProvider(OfflineConfig(), engine)
+        await first.connect(ROBOT_TOOLS)
+        rebuilds = engine.rebuilds
+        same = OfflineProvider(OfflineConfig(), engine)  # a new session, the same tools: no rebuild
+        await same.connect(SessionSetup("again", tools=(DOCK, STATUS, GO_TO, ROBOT_COMMAND_TOOL)))
+        assert engine.rebuilds == rebuilds
+        plain = OfflineProvider(OfflineConfig(), engine)  # robot_command only: no tool phrase heard
+        await plain.connect(TOOLS)
+        assert engine.rebuilds == rebuilds + 1
+        await plain.send_text("go to the kitchen")
+        assert spoken_text(await until_done(plain)) == "I did not catch that."
+        third = OfflineProvider(OfflineConfig(), engine)
+        await third.connect(ROBOT_TOOLS)  # the engine hears go_to again ...
+        await plain.send_text("go to the kitchen")  # ... which this session was not given
+        assert spoken_text(await until_done(plain)) == "I did not catch that."
+        assert plain.stats.unknown_tools == 1 and plain.stats.tool_calls == 0
+        for provider in (first, same, plain, third):
+            await provider.close()
+
+    run(scenario())
+
+
+def test_tool_phrases_beyond_the_limits_are_left_out_and_counted(
+    engine: LocalEngine, caplog: pytest.LogCaptureFixture
+) -> None:
+    many = ToolSpec(
+        "fetch",
+        "Fetch a thing.",
+        {"type": "object"},
+        spoken=(
+            ("fetch the red box", '{"thing": "red box"}'),
+            ("fetch the blue box", '{"thing": "blue box"}'),
+            ("fetch the qwzx", '{"thing": "qwzx"}'),  # no pronunciation: left out by the recognizer
+            ("fetch the green box", '{"thing": "green box"}'),  # beyond max_tool_phrases
+            ("fetch the big old heavy red wooden box with the lid", "{}"),  # beyond max_tool_phrase_words
+        ),
+    )
+
+    async def scenario() -> None:
+        provider = OfflineProvider(OfflineConfig(max_tool_phrases=3, max_tool_phrase_words=6), engine)
+        with caplog.at_level(logging.WARNING):
+            await provider.connect(SessionSetup("limits", tools=(ROBOT_COMMAND_TOOL, many)))
+        assert provider.stats.tool_phrases_left_out == 3
+        assert "fetch the qwzx" in caplog.text and "fetch the green box" in caplog.text
+        call = await call_of(provider, "fetch the blue box")
+        assert json.loads(call.arguments) == {"thing": "blue box"}
+        for text in ("fetch the green box", "fetch the qwzx"):
+            await provider.send_text(text)
+            assert spoken_text(await until_done(provider)) == "I did not catch that."
         await provider.close()
 
     run(scenario())
