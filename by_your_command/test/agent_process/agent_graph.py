@@ -400,6 +400,7 @@ class GraphProbe:
         self.voice = node.create_publisher(AudioDataUtterance, "prompt_voice", RELIABLE)
         self.text = node.create_publisher(String, "prompt_text", RELIABLE)
         self.activity = node.create_publisher(Bool, "voice_activity", RELIABLE)
+        self.safety_stop = node.create_publisher(String, "safety_stop", RELIABLE)  # as the VAD's spotter
         self.transcripts: list[String] = self._listen(String, "prompt_transcript")
         self.replies: list[String] = self._listen(String, "response_text")
         self.commands: list[String] = self._listen(String, "response_cmd")

@@ -27,6 +27,7 @@ from agent_graph import (
     setup_requests,
     until,
 )
+from std_msgs.msg import String
 
 from by_your_command.emulators import gemini_script, openai_script
 from by_your_command.emulators.gemini_wire import field_value
@@ -304,3 +305,37 @@ def test_openai_the_robots_refusals_and_silences_reach_the_model_plainly(
         statuses = [(r["status"], r["error"]) for r in function_outputs(openai)]
         assert [status for status, _ in statuses] == ["rejected", "unavailable", "timeout"], statuses
         assert probe.texts(probe.replies) == ["Refused.", "Nobody drives.", "No answer."]
+
+
+def test_openai_the_safety_stop_reaches_the_agent_through_the_bridge_and_ends_the_goal(
+    ros_namespace: str, tmp_path: Path, tools_file: Path
+) -> None:
+    """`safety_stop` (what the VAD's spotter publishes): the bridge and the agent cancel the goal,
+    and the model is told that the robot stopped (a note, no reply asked for it)."""
+    script = openai_script.Script(
+        turns=(openai_script.Turn(openai_script.CallTool("go_to", GO_TO, openai_script.Say("I stopped."))),),
+        ms_per_char=MS_PER_CHAR,
+    )
+    with openai_tools_graph(ros_namespace, tmp_path, tools_file, script, speed_mps=0.05) as (
+        openai,
+        probe,
+        check,
+    ):
+        probe.type_text("go to the kitchen")
+        until(
+            lambda: any(r.get("progress") for r in tool_records(probe.metric_records())),
+            "the robot driving (feedback told)",
+            check,
+            WAIT_S,
+        )
+        probe.safety_stop.publish(String(data="stop"))
+        until(lambda: function_outputs(openai), "the goal's end", check, WAIT_S)
+        [result] = function_outputs(openai)
+        assert result["ok"] is False and result["status"] == "cancelled"
+        until(
+            lambda: "I stopped." in probe.texts(probe.replies),
+            "the reply to the cancelled goal",
+            check,
+            WAIT_S,
+        )
+        assert any("the robot heard this itself and stopped" in note for note in notes(openai))
