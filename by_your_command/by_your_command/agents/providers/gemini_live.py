@@ -426,7 +426,7 @@ def _tools(tools: Sequence[ToolSpec]) -> types.ToolListUnion:
         types.FunctionDeclaration(
             name=tool.name,
             description=tool.description,
-            parameters_json_schema=tool.parameters,
+            parameters_json_schema=_gemini_schema(tool.parameters),
             # A robot action runs on while the conversation goes on; anything else is answered
             # at once (the robot's verdict), and the model waits for it.
             behavior=types.Behavior.NON_BLOCKING if tool.long_running else types.Behavior.BLOCKING,
@@ -434,3 +434,28 @@ def _tools(tools: Sequence[ToolSpec]) -> types.ToolListUnion:
         for tool in tools
     ]
     return [types.Tool(function_declarations=declarations)]
+
+
+# The JSON Schema keywords Gemini's parametersJsonSchema documents; others (contentEncoding, which
+# robot tools put on uint8[] fields) are left out rather than risk a refused setup.
+_SCHEMA_KEYWORDS = frozenset(
+    {
+        "type", "description", "properties", "required", "additionalProperties", "items", "enum",
+        "minimum", "maximum", "minItems", "maxItems", "minLength", "maxLength", "format", "title",
+        "nullable", "anyOf", "propertyOrdering",
+    }
+)  # fmt: skip
+
+
+def _gemini_schema(schema: object) -> object:
+    if isinstance(schema, list):
+        return [_gemini_schema(item) for item in schema]
+    if not isinstance(schema, dict):
+        return schema
+    out: dict[str, object] = {}
+    for key, value in schema.items():
+        if key == "properties" and isinstance(value, dict):  # names of fields, not keywords
+            out[key] = {name: _gemini_schema(sub) for name, sub in value.items()}
+        elif key in _SCHEMA_KEYWORDS:
+            out[key] = _gemini_schema(value) if isinstance(value, (dict, list)) else value
+    return out

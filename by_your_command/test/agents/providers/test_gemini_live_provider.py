@@ -588,3 +588,27 @@ def test_config_is_validated() -> None:
         GeminiLiveConfig(text_replies="speech")  # type: ignore[arg-type]
     with pytest.raises(ValueError):
         GeminiLiveConfig(ping_timeout_s=0)
+
+
+def test_tool_schemas_keep_only_the_keywords_gemini_documents() -> None:
+    from by_your_command.agents.providers.gemini_live import _gemini_schema
+
+    # "contentEncoding" as a property is a field's name (kept); inside a field, a keyword (dropped)
+    schema = {
+        "type": "object",
+        "properties": {
+            "contentEncoding": {"type": "string", "contentEncoding": "base64", "maxLength": 8},
+            "pose": {"type": "object", "properties": {"x": {"type": "number"}}, "$comment": "x"},
+        },
+        "required": ["pose"],
+        "additionalProperties": False,
+    }
+    assert _gemini_schema(schema) == {
+        "type": "object",
+        "properties": {
+            "contentEncoding": {"type": "string", "maxLength": 8},
+            "pose": {"type": "object", "properties": {"x": {"type": "number"}}},
+        },
+        "required": ["pose"],
+        "additionalProperties": False,
+    }
