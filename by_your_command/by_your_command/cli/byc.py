@@ -91,7 +91,7 @@ SUBCOMMANDS: dict[str, Subcommand] = {
     ),
     "up": Subcommand("start a profile's nodes and agents (no ros2 launch needed)", up.run, up.add_arguments),
     "emulate": Subcommand(
-        "run a local OpenAI Realtime or Gemini Live stand-in with scripted replies",
+        "run a local OpenAI Realtime, GPT-Live or Gemini Live stand-in with scripted replies",
         emulate.run,
         emulate.add_arguments,
     ),
