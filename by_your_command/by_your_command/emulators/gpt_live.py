@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import logging
-from collections import deque
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from urllib.parse import urlsplit
@@ -32,8 +31,9 @@ from websockets.http11 import Request, Response
 
 from by_your_command.emulators.gpt_live_script import Script
 from by_your_command.emulators.gpt_live_session import GptLiveSession, ScriptCursor, SessionLimits
-from by_your_command.emulators.gpt_live_wire import ClientEventError, JsonObject, serialise
+from by_your_command.emulators.gpt_live_wire import ClientEventError, serialise
 from by_your_command.emulators.openai_wire import parse_client_frame
+from by_your_command.emulators.recorded import EventRecord, LoopbackUrls, ReceivedEvent
 
 _QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
 _QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
@@ -50,12 +50,6 @@ class ServerLimits:
 
 
 @dataclass(frozen=True)
-class ReceivedEvent:
-    connection: int  # 0 for the first connection this emulator accepted, and so on
-    event: JsonObject
-
-
-@dataclass(frozen=True)
 class Handshake:
     connection: int
     path: str
@@ -68,25 +62,7 @@ class Interruption:
     said: str  # the reply's words sent before the user talked over it
 
 
-class _Record:
-    """What clients sent, bounded by the size of the frames it keeps."""
-
-    def __init__(self, max_bytes: int) -> None:
-        self._events: deque[tuple[ReceivedEvent, int]] = deque()
-        self._bytes, self._max_bytes = 0, max_bytes
-
-    def add(self, event: ReceivedEvent, size: int) -> None:
-        self._events.append((event, size))
-        self._bytes += size
-        while self._bytes > self._max_bytes and len(self._events) > 1:
-            _, dropped = self._events.popleft()
-            self._bytes -= dropped
-
-    def events(self) -> list[ReceivedEvent]:
-        return [event for event, _ in self._events]
-
-
-class GptLiveEmulator:
+class GptLiveEmulator(LoopbackUrls):
     """Handle of a running emulator (from `start`)."""
 
     def __init__(self, script: Script, limits: ServerLimits) -> None:
@@ -94,7 +70,7 @@ class GptLiveEmulator:
         self.cursor = ScriptCursor(script)
         self.handshakes: list[Handshake] = []
         self.interruptions: list[Interruption] = []
-        self._record = _Record(limits.max_recorded_bytes)
+        self._record = EventRecord(limits.max_recorded_bytes)
         self._server: Server | None = None
         self._connections: set[ServerConnection] = set()
         self._next_index = 0
@@ -105,25 +81,7 @@ class GptLiveEmulator:
         return self._record.events()
 
     def received_types(self, connection: int | None = None) -> list[str]:
-        return [
-            str(record.event["type"])
-            for record in self.received
-            if connection is None or record.connection == connection
-        ]
-
-    @property
-    def base_url(self) -> str:
-        """For `AsyncOpenAI(base_url=...)` or OPENAI_BASE_URL (the SDK turns http into ws)."""
-        return f"http://{self._url_host}:{self.port}/v1"
-
-    @property
-    def websocket_base_url(self) -> str:
-        """For `AsyncOpenAI(websocket_base_url=...)` (the SDK appends /live/sessions)."""
-        return f"ws://{self._url_host}:{self.port}/v1"
-
-    @property
-    def _url_host(self) -> str:
-        return f"[{self.host}]" if ":" in self.host else self.host
+        return self._record.types(connection)
 
     @property
     def open_connections(self) -> int:

@@ -19,7 +19,6 @@ import asyncio
 import contextlib
 import json
 import logging
-from collections import deque
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from typing import Any
@@ -38,6 +37,7 @@ from by_your_command.emulators.openai_wire import (
     error_event,
     parse_client_frame,
 )
+from by_your_command.emulators.recorded import EventRecord, LoopbackUrls, ReceivedEvent
 
 _QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
 _QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
@@ -55,12 +55,6 @@ class ServerLimits:
 
 
 @dataclass(frozen=True)
-class ReceivedEvent:
-    connection: int  # 0 for the first connection this emulator accepted, and so on
-    event: JsonObject
-
-
-@dataclass(frozen=True)
 class Handshake:
     connection: int
     path: str
@@ -68,32 +62,14 @@ class Handshake:
     headers: dict[str, str]  # lower-case names; Authorization is left out (a secret)
 
 
-class _Record:
-    """What clients sent, bounded by the size of the frames it keeps."""
-
-    def __init__(self, max_bytes: int) -> None:
-        self._events: deque[tuple[ReceivedEvent, int]] = deque()
-        self._bytes, self._max_bytes = 0, max_bytes
-
-    def add(self, event: ReceivedEvent, size: int) -> None:
-        self._events.append((event, size))
-        self._bytes += size
-        while self._bytes > self._max_bytes and len(self._events) > 1:
-            _, dropped = self._events.popleft()
-            self._bytes -= dropped
-
-    def events(self) -> list[ReceivedEvent]:
-        return [event for event, _ in self._events]
-
-
-class OpenAIRealtimeEmulator:
+class OpenAIRealtimeEmulator(LoopbackUrls):
     """Handle of a running emulator (from `start`)."""
 
     def __init__(self, script: Script, limits: ServerLimits) -> None:
         self.script, self.limits = script, limits
         self.cursor = ScriptCursor(script)
         self.handshakes: list[Handshake] = []
-        self._record = _Record(limits.max_recorded_bytes)
+        self._record = EventRecord(limits.max_recorded_bytes)
         self._server: Server | None = None
         self._connections: set[ServerConnection] = set()
         self._next_index = 0
@@ -104,25 +80,7 @@ class OpenAIRealtimeEmulator:
         return self._record.events()
 
     def received_types(self, connection: int | None = None) -> list[str]:
-        return [
-            str(record.event["type"])
-            for record in self.received
-            if connection is None or record.connection == connection
-        ]
-
-    @property
-    def websocket_base_url(self) -> str:
-        """For `AsyncOpenAI(websocket_base_url=...)` (the SDK appends /realtime)."""
-        return f"ws://{self._url_host}:{self.port}/v1"
-
-    @property
-    def base_url(self) -> str:
-        """For `AsyncOpenAI(base_url=...)` or OPENAI_BASE_URL (the SDK turns http into ws)."""
-        return f"http://{self._url_host}:{self.port}/v1"
-
-    @property
-    def _url_host(self) -> str:
-        return f"[{self.host}]" if ":" in self.host else self.host
+        return self._record.types(connection)
 
     async def _start(self, host: str, port: int) -> None:
         self._server = await serve(
