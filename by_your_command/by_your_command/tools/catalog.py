@@ -428,9 +428,12 @@ def _build_tool(tool: ToolConfig, describe: Callable[[str], Interface]) -> Robot
     parameters = parameters_schema(properties, required, tool.rules.confirm)
     feedback = _feedback(tool, interface, error)
     description = tool.description or f"Call the ROS {tool.kind} {tool.ros_name} ({tool.type})"
+    # Phrases made from the name never call a tool with fields left to their defaults (a goal at 0, 0)
+    open_fields = any(argument.choices is None for argument, _, _ in built)
+    spoken = () if tool.spoken_default and open_fields else tool.spoken
     return RobotTool(
         tool.name, description, tool.kind, tool.ros_name, tool.type, parameters, fixed,
-        tuple(argument for argument, _, _ in built), "", tool.rules, feedback, tool.spoken,
+        tuple(argument for argument, _, _ in built), "", tool.rules, feedback, spoken,
     )  # fmt: skip
 
 

@@ -114,6 +114,7 @@ class ToolConfig:
     rules: ToolRules = ToolRules()
     feedback: FeedbackRule | None = None  # actions only
     spoken: tuple[str, ...] = ()
+    spoken_default: bool = False  # the phrases were made from the name (default_spoken)
 
 
 @dataclass(frozen=True)
@@ -221,9 +222,11 @@ def _tool(name: str, entry: Any) -> ToolConfig:
     fixed = _fixed(entry, where)
     feedback = _feedback(entry, kind, where)
     spoken = _spoken(entry, arguments, rules, where)
+    spoken_default = "spoken" not in entry
     return ToolConfig(
-        name, kind, description, ros_name, type_name, fixed, arguments, command, rules, feedback, spoken
-    )
+        name, kind, description, ros_name, type_name, fixed, arguments, command, rules, feedback, spoken,
+        spoken_default,
+    )  # fmt: skip
 
 
 def _text(entry: dict[str, Any], key: str, where: _Where, limit: int, default: str) -> str:
@@ -504,10 +507,29 @@ def _feedback(entry: dict[str, Any], kind: str, where: _Where) -> FeedbackRule |
     return FeedbackRule(every, tuple(fields))
 
 
+def default_spoken(name: str, arguments: tuple[ArgumentConfig, ...] | None, rules: ToolRules) -> list[str]:
+    """The offline agent's phrases for a tool that declares none: its name said as words, with the
+    name of one of its choices after it ("go_to" + place → "go to the kitchen", "dock" → "dock").
+    Only for tools whose every argument is named values (one at most) and that need no yes; a tool
+    whose arguments are left to the interface keeps them only if it has no field to fill
+    (`spoken_default`: the catalog checks that against the interface)."""
+    words = " ".join(name.split("_")).strip()
+    if not words or rules.confirm:
+        return []
+    named = [argument for argument in arguments or () if argument.choices is not None]
+    if len(named) != len(arguments or ()) or len(named) > 1:
+        return []
+    if not named:
+        return [words]
+    return [f"{words} the {{{named[0].name}}}", f"{words} {{{named[0].name}}}"]
+
+
 def _spoken(
     entry: dict[str, Any], arguments: tuple[ArgumentConfig, ...] | None, rules: ToolRules, where: _Where
 ) -> tuple[str, ...]:
-    raw = entry.get("spoken") or []
+    raw = entry.get("spoken")
+    if raw is None:
+        raw = default_spoken(where.tool, arguments, rules)
     if isinstance(raw, str):
         raw = [raw]
     if not isinstance(raw, list) or len(raw) > MAX_SPOKEN:

@@ -461,3 +461,18 @@ def test_from_json_refuses_a_non_finite_number_written_as_a_huge_one(demo: Catal
 def test_a_catalog_built_by_hand_is_checked_like_a_received_one(demo: Catalog) -> None:
     tool = copy.deepcopy(demo.tools[0])
     assert Catalog.from_json(Catalog((tool,)).to_json()).tools == (tool,)
+
+
+def test_phrases_made_from_a_name_are_dropped_when_the_interface_leaves_fields_to_fill() -> None:
+    config = parse_tools_config(
+        {
+            "tools": {
+                "dock": {"service": "dock", "type": "by_your_command_msgs/srv/Trigger"},  # nothing to fill
+                "say": {"topic": "speech", "type": "std_msgs/msg/String"},  # `data` left to the model
+            }
+        }
+    )
+    catalog = build_catalog(config, describe)
+    dock, say = catalog.get("dock"), catalog.get("say")
+    assert dock is not None and dock.spoken_forms() == [("dock", {})]
+    assert say is not None and say.spoken_forms() == []  # never "say" with an empty message

@@ -87,7 +87,31 @@ def test_defaults_and_short_type_names() -> None:
     (dock,) = config.tools
     assert dock.type == "by_your_command_msgs/srv/Trigger"
     assert dock.rules == ToolRules(False, 0.0, 60.0, 10.0, False)
-    assert dock.arguments is None and dock.feedback is None and dock.spoken == () and dock.fixed == {}
+    assert dock.arguments is None and dock.feedback is None and dock.fixed == {}
+    assert (
+        dock.spoken == ("dock",) and dock.spoken_default
+    )  # said by its name (the catalog checks the fields)
+
+
+PLACE = {"field": "pose", "choices": {"kitchen": {"x": 1}}}
+GO_TO_PHRASES = ("go to the {place}", "go to {place}")
+
+
+@pytest.mark.parametrize(
+    ("entry", "phrases"),
+    [
+        ({"action": "a", "type": "p/action/T", "arguments": {"place": PLACE}}, GO_TO_PHRASES),
+        ({"action": "a", "type": "p/action/T", "arguments": {"speed": {"field": "speed"}}}, ()),
+        ({"service": "s", "type": "p/srv/T", "confirm": True}, ()),
+        ({"service": "s", "type": "p/srv/T", "spoken": []}, ()),
+        ({"service": "s", "type": "p/srv/T", "spoken": ["drive there"]}, ("drive there",)),
+    ],
+)  # fmt: skip
+def test_a_tool_without_phrases_is_said_by_its_name_when_that_is_safe(
+    entry: dict[str, Any], phrases: tuple[str, ...]
+) -> None:
+    (tool,) = parse_tools_config({"tools": {"go_to": entry}}).tools
+    assert tool.spoken == phrases
 
 
 @pytest.mark.parametrize("data", [None, {"tools": {}}, {"tools": None}])
