@@ -47,6 +47,10 @@ INSTALL_REQUIRES = [
     # Built against numpy 1.x before 1.19; up to 1.18.0 without a numpy<2 cap (numpy 2: ImportError).
     "onnxruntime>=1.12",
     "openai>=3.52",  # GA realtime.connect; not the [realtime] extra (it caps websockets <16; 17.4 works)
+    # The GPT-Live provider and emulator check events against the SDK's own models (openai needs
+    # both; named because we import them): pydantic v2's API, typing_extensions' Required/NotRequired.
+    "pydantic>=2.0",
+    "typing-extensions>=4.7",
     "google-genai>=2.33",  # Gemini Live; 3.x needs Python 3.11, so 3.10 (Humble) gets 2.33
     "cryptography>=42",  # the Gemini emulator's self-signed certificate (the SDK forces TLS)
     "pocketsphinx>=5.0",  # offline recognition and spoken wake-up; the en-us model ships in the wheel

@@ -1,10 +1,11 @@
 """Provider kinds by name: validate a config's `provider` section and build the session factory.
 
-`openai`, `gemini` and `offline` (no key). The API key is read from the environment once, at
-start (a missing key is a config error, not a failure at the first utterance), and handed to the
-provider object; it is never put in a message. A kind may accept several variables: Gemini takes
-GOOGLE_API_KEY, else GEMINI_API_KEY (google-genai's own precedence, so every program on the machine
-picks the same key); `provider.api_key_env` names the one variable to read instead.
+`openai`, `gpt_live` (OPENAI_API_KEY too), `gemini` and `offline` (no key). The API key is read
+from the environment once, at start (a missing key is a config error, not a failure at the first
+utterance), and handed to the provider object; it is never put in a message. A kind may accept
+several variables: Gemini takes GOOGLE_API_KEY, else GEMINI_API_KEY (google-genai's own precedence,
+so every program on the machine picks the same key); `provider.api_key_env` names the one variable
+to read instead.
 """
 
 from __future__ import annotations
@@ -159,8 +160,25 @@ def _build_gemini(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     return BuiltProvider(factory, values, key)
 
 
+# --- gpt_live ----------------------------------------------------------------------------------
+
+
+def _build_gpt_live(settings: Mapping[str, Any], key: str) -> BuiltProvider:
+    # Imported here: the openai SDK is only needed by agents that use it.
+    from by_your_command.agents.providers.gpt_live import GptLiveProvider
+    from by_your_command.agents.providers.gpt_live_config import GptLiveConfig
+
+    config, values = _cloud_settings(GptLiveConfig, settings)
+
+    def factory() -> GptLiveProvider:
+        return GptLiveProvider(config, api_key=key)
+
+    return BuiltProvider(factory, values, key)
+
+
 PROVIDER_KINDS: dict[str, ProviderKind] = {
     "openai": ProviderKind(("OPENAI_API_KEY",), _build_openai),
+    "gpt_live": ProviderKind(("OPENAI_API_KEY",), _build_gpt_live),
     # google-genai's order: GOOGLE_API_KEY wins when both are set (the provider logs which is used)
     "gemini": ProviderKind(("GOOGLE_API_KEY", "GEMINI_API_KEY"), _build_gemini),
     "offline": ProviderKind((), _build_offline),

@@ -71,7 +71,7 @@ def checked(capsys: pytest.CaptureFixture[str], *argv: str) -> dict[str, Any]:
         ({"provider": {"noise_reduction": "loud"}}, "provider.noise_reduction: must be one of"),
         (
             {"provider": {"type": "telepathy"}},
-            "provider.type: must be one of ['gemini', 'offline', 'openai']",
+            "provider.type: must be one of ['gemini', 'gpt_live', 'offline', 'openai']",
         ),
         ({"provider": "gpt"}, "provider: must be a mapping"),
         ({"prompt_id": "no_such_prompt"}, "prompt_id: no prompt 'no_such_prompt'"),
