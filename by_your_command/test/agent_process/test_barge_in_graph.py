@@ -96,10 +96,14 @@ class Microphone:
 
 @contextmanager
 def vad_process(namespace: str) -> Iterator[object]:
-    """The VAD as the external / aec profiles run it: the shipped defaults (pre-roll 480 ms)."""
+    """The VAD as the external / aec profiles run it: the shipped defaults (pre-roll 480 ms). The
+    stop spotter is off, as in bench_barge_in.py: it leans to stopping, and now and then takes the
+    test's one-word cough ("ha", heard "car") for a stop, which is its own figure
+    (bench_safety_stop.py: false stops), not the barge-in judge's."""
     command = python_module(
         "by_your_command.nodes.silero_vad_node",
         "--ros-args", "-r", f"__ns:={namespace}", "-p", "input_topic:=audio", "-p", "echo_gate:=false",
+        "-p", "stop_spotter:=false",
     )  # fmt: skip
     with running_process(command) as process:
         yield process
