@@ -77,14 +77,14 @@ def states(records: list[dict[str, Any]]) -> list[str]:
 
 @contextmanager
 def openai_tools_graph(
-    namespace: str, tmp_path: Path, tools: Path, script: openai_script.Script, speed_mps: float
+    namespace: str, tmp_path: Path, tools: Path, script: openai_script.Script, *robot_params: str
 ) -> Iterator[tuple[Any, Any, Any]]:
+    """The OpenAI emulator, the probe, demo_robot (`robot_params` name:=value), the bridge with
+    `tools`, and `byc agent` holding the robot's tools."""
     with ExitStack() as stack:
         openai = stack.enter_context(emulator(script))
         probe = stack.enter_context(graph_probe(namespace))
-        robot = stack.enter_context(
-            demo_robot_process(namespace, f"speed_mps:={speed_mps}", "feedback_rate_hz:=10.0")
-        )
+        robot = stack.enter_context(demo_robot_process(namespace, "feedback_rate_hz:=10.0", *robot_params))
         port, _ = stack.enter_context(bridge_process(namespace, 0, f"tools_path:={tools}"))
         config, settings = agent_config(tmp_path, openai.url, "robot", role="tools")
         agent, output = stack.enter_context(agent_process(config, port))
@@ -92,6 +92,16 @@ def openai_tools_graph(
         probe.wait_agents_ready(namespace, [setup_requests(settings)])
         until(lambda: output.find(r"the robot's tools: .*go_to"), "the agent got the tools", check, WAIT_S)
         yield openai, probe, check
+
+
+def wait_driving(probe: Any, check: Any) -> None:
+    """Until the agent told the model the robot's first feedback: the goal is running."""
+    until(
+        lambda: any(r.get("progress") for r in tool_records(probe.metric_records())),
+        "the robot driving (feedback told)",
+        check,
+        WAIT_S,
+    )
 
 
 def function_outputs(openai: Any) -> list[dict[str, Any]]:
@@ -123,7 +133,7 @@ def test_openai_a_goal_drives_reports_progress_and_its_result_gets_the_reply(
         ),
         ms_per_char=MS_PER_CHAR,
     )
-    with openai_tools_graph(ros_namespace, tmp_path, tools_file, script, speed_mps=1.0) as (
+    with openai_tools_graph(ros_namespace, tmp_path, tools_file, script, "speed_mps:=1.0") as (
         openai,
         probe,
         check,
@@ -162,18 +172,13 @@ def test_openai_stop_typed_while_driving_cancels_the_goal_and_the_model_hears_wh
         ),
         ms_per_char=MS_PER_CHAR,
     )
-    with openai_tools_graph(ros_namespace, tmp_path, tools_file, script, speed_mps=0.05) as (
+    with openai_tools_graph(ros_namespace, tmp_path, tools_file, script, "speed_mps:=0.05") as (
         openai,
         probe,
         check,
     ):
         probe.type_text("go to the kitchen")
-        until(
-            lambda: any(r.get("progress") for r in tool_records(probe.metric_records())),
-            "the robot driving (feedback told)",
-            check,
-            WAIT_S,
-        )
+        wait_driving(probe, check)
         probe.type_text("stop")
         until(lambda: function_outputs(openai), "the goal's end", check, WAIT_S)
         [result] = function_outputs(openai)
@@ -287,18 +292,8 @@ def test_openai_the_robots_refusals_and_silences_reach_the_model_plainly(
         ),
         ms_per_char=MS_PER_CHAR,
     )
-    with ExitStack() as stack:
-        openai = stack.enter_context(emulator(script))
-        probe = stack.enter_context(graph_probe(ros_namespace))
-        robot = stack.enter_context(demo_robot_process(ros_namespace, "service_delay_s:=5.0"))
-        port, _ = stack.enter_context(bridge_process(ros_namespace, 0, f"tools_path:={tools_file}"))
-        config, settings = agent_config(tmp_path, openai.url, "robot", role="tools")
-        agent, output = stack.enter_context(agent_process(config, port))
-        check = alive(agent, robot)
-        probe.wait_agents_ready(ros_namespace, [setup_requests(settings)])
-        until(
-            lambda: output.find(r"the robot's tools: .*ghost_drive"), "the agent got the tools", check, WAIT_S
-        )
+    graph = openai_tools_graph(ros_namespace, tmp_path, tools_file, script, "service_delay_s:=5.0")
+    with graph as (openai, probe, check):
         for count, text in enumerate(("go to the moon", "drive nowhere", "battery?"), start=1):
             probe.type_text(text)
             until(lambda: len(probe.replies) >= count, f"the reply to {text!r}", check, WAIT_S)  # noqa: B023
@@ -316,18 +311,13 @@ def test_openai_the_safety_stop_reaches_the_agent_through_the_bridge_and_ends_th
         turns=(openai_script.Turn(openai_script.CallTool("go_to", GO_TO, openai_script.Say("I stopped."))),),
         ms_per_char=MS_PER_CHAR,
     )
-    with openai_tools_graph(ros_namespace, tmp_path, tools_file, script, speed_mps=0.05) as (
+    with openai_tools_graph(ros_namespace, tmp_path, tools_file, script, "speed_mps:=0.05") as (
         openai,
         probe,
         check,
     ):
         probe.type_text("go to the kitchen")
-        until(
-            lambda: any(r.get("progress") for r in tool_records(probe.metric_records())),
-            "the robot driving (feedback told)",
-            check,
-            WAIT_S,
-        )
+        wait_driving(probe, check)
         probe.safety_stop.publish(String(data="stop"))
         until(lambda: function_outputs(openai), "the goal's end", check, WAIT_S)
         [result] = function_outputs(openai)
