@@ -166,6 +166,7 @@ class _NodeGraph:
         self.conversion_errors = 0
         self.callback_errors = 0
         self.calls = RosCalls(node, loop)
+        self._executor_stopped = False
 
     def create_entities(
         self, subscribe: list[tuple[TopicRule, str]], publish: list[tuple[TopicRule, str]]
@@ -248,7 +249,22 @@ class _NodeGraph:
             # nobody listens (the VAD reports an utterance nobody hears; a file source waits).
             subscription = self._subscriptions.pop(full_topic, None)
             if subscription is not None:
-                self._node.destroy_subscription(subscription)
+                self._destroy_subscription(subscription)
+
+    def _destroy_subscription(self, subscription: Any) -> None:
+        # Destroyed on the executor's thread: from the loop thread it races the executor's wait set,
+        # which may hold the handle already ("InvalidHandle: destruction was requested" kills the
+        # executor thread). Once the executor has stopped nothing spins: destroy it here.
+        executor = None if self._executor_stopped else self._node.executor
+        if executor is None:
+            self._node.destroy_subscription(subscription)
+        else:
+            executor.create_task(self._node.destroy_subscription, subscription)
+
+    def executor_stopped(self) -> None:
+        """From here on rclpy is called from the loop thread (the executor no longer runs tasks)."""
+        self._executor_stopped = True
+        self.calls.executor_stopped()
 
     def _create_subscription(self, full: str) -> None:
         if full in self._subscriptions:
@@ -566,7 +582,7 @@ class RosAiBridge(Node):
     def before_shutdown(self) -> None:
         """run_node: the executor has stopped. Goals still running are cancelled (nobody will be
         left to stop the robot), from the loop thread now that no executor thread calls rclpy."""
-        self._graph.calls.executor_stopped()
+        self._graph.executor_stopped()
         if self._loop.is_running():
             cancelled = asyncio.run_coroutine_threadsafe(
                 self._cancel_goals("the bridge is stopping"), self._loop

@@ -339,3 +339,41 @@ def test_every_audio_message_is_delivered_or_reported_lost(ros_namespace: str, g
             reader.close()
         # The client left: nobody listens to the audio any more, and the publisher can see it.
         wait_for(lambda: voice.get_subscription_count() == 0, timeout=20, what="prompt_voice unsubscribed")
+
+
+def test_clients_coming_and_going_while_audio_flows_leave_the_executor_alive(
+    ros_namespace: str, graph_node: Node
+) -> None:
+    """The last audio client leaving destroys the ROS subscription. Destroyed from the loop thread
+    it raced the executor's wait set ("InvalidHandle: destruction was requested"): the executor
+    thread died and the bridge exited 1 at the next stop."""
+    node = graph_node
+    voice = node.create_publisher(AudioDataUtterance, "prompt_voice", _qos.RELIABLE)
+    chunk = AudioDataUtterance(int16_data=[0] * 512, sample_rate=16000)
+    flowing = threading.Event()
+    flowing.set()
+
+    def flood() -> None:
+        while flowing.is_set():
+            voice.publish(chunk)
+
+    with bridge_process(ros_namespace) as (process, port, lines):
+        publisher = threading.Thread(target=flood, daemon=True)
+        publisher.start()
+        try:
+            for cycle in range(60):
+                reader = Reader(port)
+                reader.send({"op": "subscribe", "topic": "prompt_voice"})
+                wait_for(
+                    lambda: voice.get_subscription_count() >= 1, timeout=20, what=f"subscribed ({cycle})"
+                )
+                reader.close()  # the last client left: the bridge drops its audio subscription
+                assert not lines.find("executor thread died"), "\n".join(lines.lines)
+        finally:
+            flowing.clear()
+            publisher.join(timeout=10)
+        wait_for(lambda: voice.get_subscription_count() == 0, timeout=20, what="prompt_voice unsubscribed")
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=30) == 0, "\n".join(lines.lines)
+        assert lines.ended.wait(10)
+        assert "executor thread died" not in "\n".join(lines.lines)
