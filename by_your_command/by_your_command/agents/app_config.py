@@ -20,7 +20,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import yaml
 
-from by_your_command.agents.config import AgentConfig, AgentConfigError, parse_agent_config
+from by_your_command.agents.config import AgentConfig, AgentConfigError, EchoMode, parse_agent_config
 from by_your_command.prompts.locate import ConfigFileNotFound, find_config_file
 from by_your_command.prompts.located_yaml import BoundedSafeLoader
 
@@ -28,6 +28,7 @@ DEFAULT_BRIDGE_URL = "ws://127.0.0.1:9090"
 BRIDGE_URL_ENV = "BYC_BRIDGE_URL"
 BRIDGE_TOKEN_ENV = "BYC_BRIDGE_TOKEN"
 DEFAULT_PROVIDER = "openai"
+FULL_DUPLEX = frozenset({"gpt_live"})  # providers that take the mic while the robot talks
 TOKEN_HINT = "the variable named by bridge.token_env"
 MAX_CONFIG_BYTES = 1 << 20  # config files are a few KB
 MAX_CONFIG_VALUES = 100_000  # counted with YAML aliases expanded; a real file has a few hundred
@@ -147,6 +148,13 @@ def parse_app_config(data: Mapping[str, Any], source: str) -> AppConfig:
         agent = parse_agent_config(rest, source)
     except AgentConfigError as error:
         problems.extend(error.problems)
+    else:
+        if choice is not None and choice.type in FULL_DUPLEX and agent.echo_mode is EchoMode.GATE:
+            problems.append(
+                f"echo_mode: {choice.type} is full duplex (the model hears the user over its own voice "
+                "and decides itself when to stop), so the microphone must stay open while the robot "
+                "talks: use aec (echo cancelled on the robot) or external (echo-free mic), not gate"
+            )
     if problems:
         raise AgentConfigError(problems, source)
     assert choice is not None and bridge is not None  # a bad provider section is a problem above

@@ -20,7 +20,8 @@ class ResponseStatus(str, Enum):
 @dataclass(frozen=True)
 class Usage:
     """Tokens billed for one response (or one input transcription). Image tokens are counted
-    apart because they are priced apart and are easy to forget in cost figures."""
+    apart because they are priced apart and are easy to forget in cost figures. A per-second
+    provider (GPT-Live) bills open session time instead: `session_s`."""
 
     input_text_tokens: int = 0
     input_audio_tokens: int = 0
@@ -28,6 +29,9 @@ class Usage:
     cached_input_tokens: int = 0
     output_text_tokens: int = 0
     output_audio_tokens: int = 0
+    # Seconds of open session the vendor bills, as the server counted them (per-second providers
+    # only; each report carries the increase since the previous one, so sums are totals).
+    session_s: float = 0.0
 
     @property
     def input_tokens(self) -> int:
@@ -45,6 +49,7 @@ class Usage:
             self.cached_input_tokens + other.cached_input_tokens,
             self.output_text_tokens + other.output_text_tokens,
             self.output_audio_tokens + other.output_audio_tokens,
+            self.session_s + other.session_s,
         )
 
 
@@ -117,6 +122,14 @@ class Interrupted:
 
 
 @dataclass(frozen=True)
+class UsageReport:
+    """Usage not tied to one response: a per-second provider's billed session time (GPT-Live's
+    `session.usage.updated`), as the increase since its previous report."""
+
+    usage: Usage
+
+
+@dataclass(frozen=True)
 class SessionEnding:
     """The provider will close the session soon (limit reached, goAway): rotate at a turn boundary."""
 
@@ -147,6 +160,7 @@ ProviderEvent = (
     | ToolCallCancelled
     | ResponseDone
     | Interrupted
+    | UsageReport
     | SessionEnding
     | ProviderError
 )

@@ -30,6 +30,7 @@ from by_your_command.agents.barge_in import (
 from by_your_command.agents.clock import Clock, LoopClock
 from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
 from by_your_command.agents.context import ContextStore
+from by_your_command.agents.delegation import match_tool
 from by_your_command.agents.detections import FrameInfo, extract
 from by_your_command.agents.events import (
     AssistantAudio,
@@ -44,6 +45,7 @@ from by_your_command.agents.events import (
     ToolCall,
     ToolCallCancelled,
     Usage,
+    UsageReport,
     UserTranscript,
 )
 from by_your_command.agents.frame_size import jpeg_size
@@ -255,6 +257,9 @@ class AgentRuntime:
         self._session_conversation = 0  # the conversation (context.serial) the session serves
         self._spins = 0
         self._tasks: set[asyncio.Task[None]] = set()  # our own background work (transcriptions)
+        # A full-duplex provider (GPT-Live) hears the user over its voice and yields by itself: no
+        # barge-in judge, utterances end at once, and its own yield cuts the player (docs/gpt_live.md).
+        self._duplex = False
 
     # --- public ------------------------------------------------------------------------------
 
@@ -501,7 +506,7 @@ class AgentRuntime:
         turn.resampler = StreamResampler(chunk.sample_rate, session.input_sample_rate)
         turn.frame_since = self._utterance_ended_at
         turn.last_chunk_at = now
-        turn.deferred = bool(self._waiting)
+        turn.deferred = bool(self._waiting) and not self._duplex  # duplex: the model hears it now
         if self._barge is not None and self._barge_turn is None:
             turn.held = True
             self._barge_turn = turn
@@ -565,7 +570,23 @@ class AgentRuntime:
             self._hear_barge_in()  # the whole utterance, when its transcript is still wanted
             if turn.held:  # judged false, or still being judged: not sent (yet)
                 return
+        if self._duplex and turn.kind == "voice":
+            await self._duplex_utterance_done(turn)
+            return
         self._utterance_complete(turn)
+
+    async def _duplex_utterance_done(self, turn: Turn) -> None:
+        """Full duplex: the end goes to the model now, whatever it is saying (it decides whether to
+        answer, and may already be). The turn it answers last is the one awaited; an earlier one
+        still unanswered is finished as such."""
+        session = self._ensure_session()
+        previous = self._turn_out
+        if previous is not None:
+            await self._finish_turn(previous, "completed" if previous.reply_started else "unanswered")
+        self._turn_out = turn
+        turn.committed = True
+        session.send(EndOfTurn())
+        self._last_activity = self._awaited_at = self._committed_at = self._clock.now()
 
     def _utterance_complete(self, turn: Turn) -> None:
         """An ended utterance that is the user's turn: its frame if none went yet, then its commit."""
@@ -755,6 +776,11 @@ class AgentRuntime:
         turn = self._turn_out
         if turn is None:
             return
+        if self._duplex and turn.kind == "voice" and not turn.reply_started:
+            # The model chose not to answer (a backchannel, a pause): its choice, not a failure.
+            log.info("agent %s: turn %d was not answered", self.config.agent_id, turn.number)
+            await self._finish_turn(turn, "unanswered")
+            return
         # A reply that started is failed; one that never started is replayed on a new session.
         await self._lose_session(
             f"no answer from the provider within {self.config.reply_timeout_s:g} s",
@@ -771,6 +797,7 @@ class AgentRuntime:
         reply = self._reply
         if (
             self.config.barge_in
+            and not self._duplex
             and self._barge is None
             and reply is not None
             and not reply.cut
@@ -916,6 +943,19 @@ class AgentRuntime:
             self._session.send(Interrupt(reply.response_id, reply.item_id, heard))
         return heard
 
+    def _model_yielded(self, reply: ReplyAudio) -> None:
+        """A full-duplex model stopped talking because the user spoke: what the player still holds
+        of the reply is not said."""
+        now = self._clock.now()
+        heard = self._cut_reply(reply, "model_yielded", now)
+        self.counters.barge_ins += 1
+        log.info(
+            "agent %s: the model yielded to the user; %s cut at %d ms",
+            self.config.agent_id,
+            reply.stream_id,
+            heard,
+        )
+
     def _player(self, stream_id: str, reason: str, action: PlayerAction) -> None:
         stamp = self._clock.wall()
         self._publish(
@@ -1023,7 +1063,12 @@ class AgentRuntime:
             reply = self._reply
             if reply is not None and reply.response_id == event.response_id:
                 reply.generation_done = True
-                await self._end_stream(reply)
+                if self._duplex and not reply.cut:
+                    self._model_yielded(reply)
+                else:
+                    await self._end_stream(reply)
+        elif isinstance(event, UsageReport):
+            self._add_usage(session, turn, event.usage)
         elif isinstance(event, SessionEnding):
             self._close_at_boundary()
             self._session_ending = f"the provider is ending the session ({event.reason})"
@@ -1121,12 +1166,27 @@ class AgentRuntime:
             return
         if is_stop_request(command):  # the model stops the robot: its actions too
             await self._cancel_robot_calls(f"stopped ({command!r})")
+        elif self._duplex and await self._delegate_to_robot_tool(session, call, command):
+            return
         self._requests += 1
         request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
         self._tools.add(
             call.call_id, request_id, command, self._clock.now() + self.config.tool_verdict_timeout_s
         )
         # routed by _route_commands, after the provider events already queued behind this call
+
+    async def _delegate_to_robot_tool(self, session: Session, call: ToolCall, said: str) -> bool:
+        """A full-duplex delegation carries the user's words, not a tool: one of the robot's tools
+        when they are its declared phrase (agents/delegation.py)."""
+        specs = [_robot_tool_spec(tool) for tool in self._catalog.tools]
+        delegated = match_tool(said, specs)
+        tool = self._catalog.get(delegated.tool) if delegated is not None else None
+        if delegated is None or tool is None:
+            return False
+        log.info("agent %s: delegation %r → %s", self.config.agent_id, said[:80], tool.name)
+        named = ToolCall(call.response_id, call.call_id, tool.name, delegated.arguments)
+        await self._start_robot_call(session, tool, named)
+        return True
 
     async def _route_commands(self) -> None:
         """Publish the commands of tool calls once no provider event waits in the queue: a
@@ -1491,6 +1551,7 @@ class AgentRuntime:
             self.config.connect_timeout_s, self.config.op_timeout_s, self.config.close_timeout_s
         )
         session = Session(self._serial, provider, setup, timeouts, self._clock, self._from_session)
+        self._duplex = bool(getattr(provider, "duplex", False))
         self._session_conversation = self.context.serial
         session.start(delay_s=max(0.0, self._not_before - now, (self._reconnect_at or now) - now))
         self._session = session

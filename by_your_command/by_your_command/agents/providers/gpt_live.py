@@ -1,12 +1,14 @@
 """The OpenAI GPT-Live session behind the `Provider` protocol, on the official SDK (`client.live`).
 
 GPT-Live is full duplex: one audio stream each way, and the model decides when to speak, when to
-delegate work and when to yield to the user. Our runtime (phase 1) sends each utterance's audio and
-then `end_of_turn`, so:
+delegate work and when to yield to the user (`duplex`: the runtime does not judge barge-ins, it
+cuts the player when the model yields). So:
 
-- `end_of_turn` appends `end_of_turn_silence_ms` of silence: our VAD sends only speech, and the
-  model takes its turn by hearing the speaker stop (there is no commit or response.create).
-- replies are made up by `LiveTranslator` (no response ids, no reply end on the wire).
+- the input is one stream in real time (gpt_live_input.InputClock): each utterance's audio as it
+  comes, and silence in between, appended every `input_tick_ms`; `end_of_turn` only marks the
+  utterance's end (there is no commit or response.create: the model hears the user stop).
+- replies are made up by `LiveTranslator` (no response ids, no reply end on the wire); a reply the
+  user spoke over that goes quiet is an `Interrupted` (the model yielded).
 - `interrupt` cannot cancel: the model hears the user over the same stream and stops by itself
   (or talks on). It marks the reply cut, so its audio is dropped and its end says so.
 - robot tools: client delegation (`session.delegation.created`) names no function, so it is a
@@ -63,6 +65,7 @@ from by_your_command.agents.providers.gpt_live_events import (
     UnreadableEvent,
     parse_server_event,
 )
+from by_your_command.agents.providers.gpt_live_input import InputClock
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +81,7 @@ class GptLiveProvider:
 
     name = "gpt_live"
     accepts_images = False  # for a runtime that asks before sending camera frames
+    duplex = True  # the model hears the user over its voice and yields by itself (runtime: no barge-in judge)
 
     def __init__(self, config: GptLiveConfig | None = None, api_key: str | None = None) -> None:
         self.config = config or GptLiveConfig()
@@ -88,12 +92,18 @@ class GptLiveProvider:
         self._connection: AsyncLiveConnection | None = None
         self._events = EventStream(self.config.event_queue_size)
         self._translator = LiveTranslator(
-            self.config.sample_rate, self.config.reply_end_gap_ms / 1000, self.config.delegation_tool
+            self.config.sample_rate,
+            self.config.reply_end_gap_ms / 1000,
+            self.config.delegation_tool,
+            yield_gap_s=self.config.yield_gap_ms / 1000,
         )
+        self._input = InputClock(self.config.sample_rate, self.config.max_catch_up_ms / 1000)
+        self.silence_skipped_s = 0.0  # behind real time after a stall, beyond max_catch_up (not sent)
         self._reader: asyncio.Task[None] | None = None
+        self._silence: asyncio.Task[None] | None = None
+        self._input_order = asyncio.Lock()  # speech and silence appends, one at a time, in order
         self._session_closed = asyncio.Event()  # session.closed came: the server finalized
         self._closed = False
-        self._in_utterance = False  # audio sent since the last end_of_turn
         self.muted = False
         self.session_id = ""
 
@@ -154,6 +164,7 @@ class GptLiveProvider:
                 await connection.close()
             raise
         self._reader = asyncio.ensure_future(self._read(connection))
+        self._silence = asyncio.ensure_future(self._keep_input_live(connection))
 
     async def _start(self, connection: AsyncLiveConnection, setup: SessionSetup) -> None:
         """session.start, then wait for session.started: a refused start is a fatal config error."""
@@ -206,6 +217,9 @@ class GptLiveProvider:
             return
         self._closed = True
         connection, self._connection = self._connection, None
+        if self._silence is not None:
+            self._silence.cancel()
+            await asyncio.gather(self._silence, return_exceptions=True)
         try:
             if connection is not None and self._reader is not None and not self._reader.done():
                 with contextlib.suppress(Exception):
@@ -236,18 +250,39 @@ class GptLiveProvider:
         if not pcm:
             return
         connection = self._live()
-        await self._append(connection, pcm)
+        now = asyncio.get_running_loop().time()
+        starts = not self._input.in_utterance
+        async with self._input_order:
+            self._input.in_utterance = True  # no silence spliced into the speech from here
+            await self._append(connection, pcm)
+            self._input.sent(len(pcm) // 2, now)
         if not self.muted:  # muted speech never reaches the model: it cannot yield to it
-            self._translator.user_speech(asyncio.get_running_loop().time(), starts=not self._in_utterance)
-        self._in_utterance = True
+            self._translator.user_speech(now, starts=starts)
 
     async def end_of_turn(self) -> None:
-        """Silence after the speech, so the model hears the user stop (see the module docstring)."""
-        connection = self._live()
-        self._in_utterance = False
-        silence_bytes = self.config.sample_rate * 2 * self.config.end_of_turn_silence_ms // 1000
-        if silence_bytes:
-            await self._append(connection, bytes(silence_bytes))
+        """The utterance ended: silence follows at real time (`_keep_input_live`), and the model
+        hears the user stop (see the module docstring)."""
+        self._live()
+        self._input.in_utterance = False
+
+    async def _keep_input_live(self, connection: AsyncLiveConnection) -> None:
+        """Silence between utterances, at real time, for the session's life. A failed append ends
+        the connection like any other (the reader reports it)."""
+        loop = asyncio.get_running_loop()
+        self._input.start(loop.time())
+        tick = self.config.input_tick_ms / 1000
+        try:
+            while not self._closed:
+                await asyncio.sleep(tick)
+                async with self._input_order:  # decided and sent before any speech that follows
+                    plan = self._input.silence_due(loop.time())
+                    if plan.skipped:
+                        self.silence_skipped_s += plan.skipped / self.config.sample_rate
+                    if plan.samples and not self._closed:
+                        await self._append(connection, bytes(2 * plan.samples))
+                        self._input.sent(plan.samples, loop.time())
+        except ProviderClosed:
+            return  # the connection is gone: the reader ends the session
 
     async def _append(self, connection: AsyncLiveConnection, pcm: bytes) -> None:
         async with closing_on_failure(_SESSION):

@@ -16,12 +16,16 @@ class GptLiveConfig:
     # One PCM16 format both ways (the session's audio.format): the runtime resamples the microphone
     # to it and the reply audio comes at it. 24 kHz keeps the voice's quality.
     sample_rate: Literal[16000, 24000] = 24000
-    # Our VAD sends only speech; the model takes turns by hearing the speaker stop. This much
-    # silence after each utterance lets it hear that (the protocol has no commit).
-    end_of_turn_silence_ms: int = 600
+    # The input is one stream in real time: between utterances (our VAD sends speech only) silence
+    # is appended every `input_tick_ms`, so the model hears the user stop and time pass.
+    input_tick_ms: int = 100
+    max_catch_up_ms: int = 1000  # a stalled loop skips what it is behind beyond this (never a burst)
     # Output deltas carry no reply id and no event ends a reply: one ends after this much quiet.
     # Above the delta cadence (100 ms) plus network jitter; it delays only the reply's bookkeeping.
     reply_end_gap_ms: int = 600
+    # The model streams its voice at about real time: once the user spoke over it, output quiet
+    # this long means it yielded, and the player cuts what it still holds of the reply.
+    yield_gap_ms: int = 250
     delegation_tool: str = TOOL_NAME  # the tool a client delegation calls (see gpt_live_events)
     acknowledgement_delay_ms: int | None = None  # spoken "one moment" after a delegation; None: server's
     safety_identifier: str = ""  # a stable id of the end user for OpenAI's abuse monitoring; "" none
@@ -39,10 +43,14 @@ class GptLiveConfig:
     def __post_init__(self) -> None:
         if not self.model or not self.voice or not self.delegation_tool:
             raise ValueError("model, voice and delegation_tool must not be empty")
-        if not 0 <= self.end_of_turn_silence_ms <= 5_000:
-            raise ValueError("end_of_turn_silence_ms must be within 0..5000")
+        if not 20 <= self.input_tick_ms <= 1_000:
+            raise ValueError("input_tick_ms must be within 20..1000")
+        if not self.input_tick_ms <= self.max_catch_up_ms <= 10_000:
+            raise ValueError("max_catch_up_ms must be within input_tick_ms..10000")
         if not 50 <= self.reply_end_gap_ms <= 10_000:
             raise ValueError("reply_end_gap_ms must be within 50..10000")
+        if not 50 <= self.yield_gap_ms <= 10_000:  # reply_end_gap_ms if larger: never longer than it
+            raise ValueError("yield_gap_ms must be within 50..10000")
         if self.acknowledgement_delay_ms is not None and not 0 <= self.acknowledgement_delay_ms <= 60_000:
             raise ValueError("acknowledgement_delay_ms must be within 0..60000")
         if not 0 <= self.max_history_messages <= 128 or self.max_history_chars < 0:

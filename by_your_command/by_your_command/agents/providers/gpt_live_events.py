@@ -6,9 +6,14 @@ counts replies, so this translator makes them: a reply starts with the first out
 transcript or a delegation) after a quiet spell and ends once the output has been quiet for
 `reply_end_gap_s` (`tick` ends it; the provider calls it when `deadline` passes). The ids are ours.
 
-No event says "the model stopped because the user spoke" either. A reply that ends after the user
-began speaking while it was still talking (`user_speech`, from the audio we sent) yielded to the
-user: `Interrupted`, then `ResponseDone(cancelled)`. A heuristic, documented as such.
+No event says "the model stopped because the user spoke" either. The model streams its voice at
+about real time, so a reply whose output stops for `yield_gap_s` after the user began speaking
+while it talked (`user_speech`, from the audio we sent) yielded to the user: `Interrupted` at once
+(the runtime cuts what the player still holds), then `ResponseDone(cancelled)`. A heuristic,
+documented as such (docs/gpt_live.md).
+
+Billing: `session.usage.updated` carries the session's total seconds; each increase is reported as
+a `UsageReport` (`Usage.session_s`), so the runtime sums it like tokens.
 
 A client delegation names no function and no arguments (the task is in the conversation): it
 becomes a `ToolCall` of `delegation_tool` whose command is what the user said since the previous
@@ -20,6 +25,7 @@ from __future__ import annotations
 import base64
 import binascii
 import json
+import math
 import uuid
 from collections import Counter
 from dataclasses import dataclass, field
@@ -55,6 +61,8 @@ from by_your_command.agents.events import (
     ResponseStatus,
     SessionEnding,
     ToolCall,
+    Usage,
+    UsageReport,
     UserTranscript,
 )
 from by_your_command.agents.providers.gpt_live_errors import provider_error
@@ -148,9 +156,11 @@ class LiveTranslator:
         reply_end_gap_s: float,
         delegation_tool: str,
         text_replies: bool = False,  # a command agent: transcripts as AssistantText, no audio
+        yield_gap_s: float | None = None,  # None: reply_end_gap_s
     ) -> None:
         self.sample_rate = sample_rate
         self.reply_end_gap_s = reply_end_gap_s
+        self.yield_gap_s = reply_end_gap_s if yield_gap_s is None else min(yield_gap_s, reply_end_gap_s)
         self.delegation_tool = delegation_tool
         self.text_replies = text_replies
         self.billed_seconds = 0.0  # cumulative seconds the server counts (never summed: it is a total)
@@ -183,7 +193,7 @@ class LiveTranslator:
         """When `tick` has something to end (a reply or an utterance gone quiet), if anything."""
         times = []
         if self._reply is not None:
-            times.append(self._reply.last_output_at + self.reply_end_gap_s)
+            times.append(self._reply.last_output_at + self._quiet_gap(self._reply))
         if self._heard:
             times.append(self._heard_at + self.reply_end_gap_s)
         return min(times) if times else None
@@ -193,9 +203,17 @@ class LiveTranslator:
         if self._heard and now >= self._heard_at + self.reply_end_gap_s:
             out += self._flush_heard()
         reply = self._reply
-        if reply is not None and now >= reply.last_output_at + self.reply_end_gap_s:
+        if reply is not None and now >= reply.last_output_at + self._quiet_gap(reply):
             out += self._end_reply(reply)
         return out
+
+    def _spoken_over(self, reply: _Reply) -> bool:
+        """The user began speaking while this reply was being said."""
+        spoke = self._speech_started_at
+        return spoke is not None and reply.started_at <= spoke <= reply.last_output_at
+
+    def _quiet_gap(self, reply: _Reply) -> float:
+        return self.yield_gap_s if self._spoken_over(reply) and not reply.cut else self.reply_end_gap_s
 
     def connection_lost(self, why: str) -> list[ProviderEvent]:
         """The socket is gone: report what was heard and fail the reply in flight."""
@@ -217,8 +235,7 @@ class LiveTranslator:
         if isinstance(event, DelegationCreatedEvent):
             return self._delegation(event, now)
         if isinstance(event, SessionUsageUpdatedEvent):
-            self._bill(event.usage.seconds)
-            return []
+            return self._bill(event.usage.seconds)
         if isinstance(event, SessionClosedEvent):
             return self._closed(event)
         if isinstance(event, ErrorEvent):
@@ -294,33 +311,36 @@ class LiveTranslator:
     def _end_reply(self, reply: _Reply) -> list[ProviderEvent]:
         self._reply = None
         out: list[ProviderEvent] = []
+        # It was talking when the user began, and stopped: the model yielded (it decides barge-in).
+        # Said first, so the runtime cuts the player (and marks the words cut) before they are kept.
+        yielded = not reply.cut and self._spoken_over(reply)
+        if yielded:
+            out.append(Interrupted(reply.response_id))
         text = "".join(reply.said).strip()
         if text:
             final = AssistantText if self.text_replies else AssistantTranscript
             out.append(final(reply.response_id, reply.item_id, text, final=True))
-        spoke = self._speech_started_at
         if reply.cut:
             out.append(ResponseDone(reply.response_id, ResponseStatus.CANCELLED, reason="cut by the user"))
-        elif spoke is not None and reply.started_at <= spoke <= reply.last_output_at:
-            # It was talking when the user began, and stopped: the model yielded (it decides barge-in).
-            out.append(Interrupted(reply.response_id))
-            out.append(
-                ResponseDone(
-                    reply.response_id, ResponseStatus.CANCELLED, reason="the model yielded to the user"
-                )
-            )
+        elif yielded:
+            why = "the model yielded to the user"
+            out.append(ResponseDone(reply.response_id, ResponseStatus.CANCELLED, reason=why))
         else:
             out.append(ResponseDone(reply.response_id, ResponseStatus.COMPLETED))
         return out
 
-    def _bill(self, seconds: float) -> None:
-        if seconds == seconds and seconds > self.billed_seconds:  # a total: keep the largest (not NaN)
-            self.billed_seconds = float(seconds)
+    def _bill(self, seconds: float) -> list[ProviderEvent]:
+        """A total: keep the largest (a NaN or a smaller total is no news); report the increase."""
+        if not (math.isfinite(seconds) and seconds > self.billed_seconds):
+            return []
+        added, self.billed_seconds = seconds - self.billed_seconds, float(seconds)
+        return [UsageReport(Usage(session_s=added))]
 
     def _closed(self, event: SessionClosedEvent) -> list[ProviderEvent]:
-        self._bill(event.usage.seconds)
+        out = self._bill(event.usage.seconds)
         if event.reason == "expired":
-            return [SessionEnding("the GPT-Live session expired", 0.0)]
-        if event.reason == "content":
-            return [ProviderError("session_closed_content", "GPT-Live closed the session (content filter)")]
-        return []
+            out.append(SessionEnding("the GPT-Live session expired", 0.0))
+        elif event.reason == "content":
+            why = "GPT-Live closed the session (content filter)"
+            out.append(ProviderError("session_closed_content", why))
+        return out

@@ -31,7 +31,7 @@ from openai.types.live.error import Error
 
 from by_your_command.agents.app_config import ProviderChoice, load_app_config
 from by_your_command.agents.app_providers import build_provider
-from by_your_command.agents.config import AgentConfigError
+from by_your_command.agents.config import AgentConfigError, EchoMode
 from by_your_command.agents.events import (
     AssistantAudio,
     AssistantText,
@@ -43,6 +43,8 @@ from by_your_command.agents.events import (
     ResponseStatus,
     SessionEnding,
     ToolCall,
+    Usage,
+    UsageReport,
     UserTranscript,
 )
 from by_your_command.agents.provider import (
@@ -62,6 +64,7 @@ from by_your_command.agents.providers.gpt_live_events import (
     UnreadableEvent,
     parse_server_event,
 )
+from by_your_command.agents.providers.gpt_live_input import InputClock, SilencePlan
 from by_your_command.emulators.gpt_live import GptLiveEmulator, start
 from by_your_command.emulators.gpt_live_script import Delegate, Say, Script, Turn
 
@@ -211,30 +214,64 @@ def test_text_replies_for_a_command_agent() -> None:
     assert isinstance(done, ResponseDone)
 
 
-def test_usage_is_a_running_total_and_the_session_end_is_reported() -> None:
+def test_usage_is_a_running_total_reported_by_its_increases() -> None:
     live = translator()
-    for seconds in (3.0, 5.0, 4.0):  # totals, not increments; never summed
+    reports = []
+    for seconds in (3.0, 5.0, 4.0, float("nan")):  # totals, not increments; a smaller one is no news
         usage = SessionUsageUpdatedEvent(
             type="session.usage.updated", event_id="e", usage=SessionUsage(seconds=seconds)
         )
-        assert live.translate(usage, 0.0) == []
+        reports += live.translate(usage, 0.0)
+    assert reports == [UsageReport(Usage(session_s=3.0)), UsageReport(Usage(session_s=2.0))]
     assert live.billed_seconds == 5.0
 
-    def closed(reason: Any) -> SessionClosedEvent:
+    def closed(reason: Any, seconds: float = 61.0) -> SessionClosedEvent:
         return SessionClosedEvent(
             type="session.closed",
             event_id="e",
             reason=reason,
             session=session_resource(),
-            usage=SessionUsage(seconds=61.0),
+            usage=SessionUsage(seconds=seconds),
         )
 
-    (ending,) = live.translate(closed("expired"), 0.0)
-    assert isinstance(ending, SessionEnding)
+    final, ending = live.translate(closed("expired"), 0.0)
+    assert final == UsageReport(Usage(session_s=56.0)) and isinstance(ending, SessionEnding)
     (error,) = live.translate(closed("content"), 0.0)
     assert isinstance(error, ProviderError) and not error.fatal
     assert live.translate(closed("close_requested"), 0.0) == []
     assert live.billed_seconds == 61.0
+
+
+def test_a_reply_the_user_spoke_over_is_ended_by_the_short_yield_gap() -> None:
+    live = translator(yield_gap_s=0.1)
+    (sound,) = feed(live, (0.0, audio()))
+    assert isinstance(sound, AssistantAudio)
+    assert live.deadline() == pytest.approx(GAP)  # nobody spoke over it: the reply-end gap
+    live.user_speech(0.3, starts=True)
+    feed(live, (0.4, audio()))
+    assert live.deadline() == pytest.approx(0.5)  # spoken over: quiet this long means it yielded
+    assert live.tick(0.45) == []
+    interrupted, done = live.tick(0.5)
+    assert interrupted == Interrupted(sound.response_id)
+    assert isinstance(done, ResponseDone) and done.status is ResponseStatus.CANCELLED
+
+
+def test_the_input_clock_fills_silence_between_utterances_at_real_time() -> None:
+    clock = InputClock(1000, max_catch_up_s=0.5)
+    assert clock.silence_due(1.0) == SilencePlan(0, 0)  # not started
+    clock.start(1.0)
+    assert clock.silence_due(1.1) == SilencePlan(100, 0)
+    clock.sent(100, 1.1)
+    clock.in_utterance = True
+    assert clock.silence_due(1.5) == SilencePlan(0, 0)  # never spliced into speech
+    clock.sent(900, 1.5)  # a pre-roll at once: the stream is ahead of the clock
+    clock.in_utterance = False
+    assert clock.silence_due(1.9) == SilencePlan(0, 0)  # 1000 samples sent by 0.9 s: wait
+    assert clock.silence_due(2.2) == SilencePlan(200, 0)
+    clock.sent(200, 2.2)
+    assert clock.silence_due(5.2) == SilencePlan(500, 2500)  # a stall: no 3 s burst, the clock moves on
+    clock.sent(500, 5.2)
+    assert clock.silence_due(5.3) == SilencePlan(100, 0)
 
 
 def test_errors_are_typed_and_never_quote_the_key() -> None:
@@ -303,6 +340,14 @@ def test_the_shipped_config_is_valid_and_keeps_the_camera_off() -> None:
     assert app.provider.type == "gpt_live" and app.agent.topics.camera == ""  # GPT-Live takes no images
     provider = build_provider(app.provider, {"OPENAI_API_KEY": "sk-test"}).factory()
     assert isinstance(provider, GptLiveProvider) and provider.config == GptLiveConfig()
+    assert app.agent.echo_mode is EchoMode.AEC and provider.duplex
+
+
+def test_a_gated_microphone_is_refused_for_a_full_duplex_model() -> None:
+    with pytest.raises(AgentConfigError, match="echo_mode: gpt_live is full duplex.*not gate"):
+        load_app_config("agent_gpt_live.yaml", ["echo_mode=gate"])
+    assert load_app_config("agent_gpt_live.yaml", ["echo_mode=external"]).agent.echo_mode is EchoMode.EXTERNAL
+    assert load_app_config("agent_openai.yaml", ["echo_mode=gate"]).agent.echo_mode is EchoMode.GATE
 
 
 # ---- the provider against the emulator ---------------------------------------------------------
@@ -423,6 +468,26 @@ def test_a_delegation_is_a_tool_call_whose_result_the_model_speaks() -> None:
         assert commentary["delegation_id"] == call.call_id and '{"accepted": true}' in commentary["content"]
 
     run(body, script)
+
+
+def test_silence_follows_each_utterance_at_real_time() -> None:
+    script = Script(turns=(Turn(Say("Hi"), heard="hello"),), pace=0)
+
+    async def body(emulator: GptLiveEmulator, provider: GptLiveProvider) -> None:
+        started = asyncio.get_running_loop().time()
+        await provider.send_audio(speech(400))
+        await provider.end_of_turn()  # no silence appended here: it follows at the clock's pace
+        await take_until(provider.events(), is_done)  # the model heard the user stop
+        elapsed = asyncio.get_running_loop().time() - started
+        appended = sum(
+            len(base64.b64decode(event["audio"])) // 2
+            for event in sent(emulator, "session.input_audio.append")
+        )
+        # The stream never runs ahead of real time beyond the utterance's own audio.
+        assert appended <= 24_000 * (elapsed + 0.4 + 0.1)
+        assert appended > 24_000 * 0.4  # speech, then silence
+
+    run(body, script, input_tick_ms=20)
 
 
 def test_speech_over_a_reply_makes_the_model_yield() -> None:
