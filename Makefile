@@ -11,7 +11,8 @@ all: test
 bootstrap:
 	@scripts/bootstrap.sh
 
-# make demo PROVIDER=openai|gemini: the cloud agent (needs OPENAI_API_KEY / GEMINI_API_KEY)
+# make demo PROVIDER=openai|gemini|gpt-live: the cloud agent (needs OPENAI_API_KEY / GEMINI_API_KEY;
+# gpt-live: OPENAI_API_KEY, full duplex with the echo-cancelled microphone)
 PROVIDER ?= offline
 demo: bootstrap
 	@$(RUN) byc demo --provider $(PROVIDER)

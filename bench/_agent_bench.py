@@ -34,8 +34,9 @@ import yaml
 from by_your_command.agents.bridge_port import BridgePort
 from by_your_command.agents.config import parse_agent_config
 from by_your_command.bridge.client_messages import Delivery
-from by_your_command.emulators import gemini_live
+from by_your_command.emulators import gemini_live, gpt_live
 from by_your_command.emulators import gemini_script as gemini
+from by_your_command.emulators import gpt_live_script as live
 from by_your_command.emulators.gemini_wire import decode_blob, field_value
 from by_your_command.emulators.openai_realtime import OpenAIRealtimeEmulator, start
 from by_your_command.emulators.openai_script import Script
@@ -44,7 +45,7 @@ from by_your_command.emulators.threaded import ThreadedEmulator
 T = TypeVar("T")
 VAD_RATE = 16000
 CHUNK_MS = 100
-PROVIDERS = ("openai", "gemini")
+PROVIDERS = ("openai", "gemini", "gpt_live")
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -117,10 +118,30 @@ def _video(body: dict[str, Any]) -> dict[str, Any] | None:
     return video if isinstance(video, dict) else None
 
 
-def emulator_for(provider: str, script: Script | gemini.Script) -> EmulatorThread | GeminiEmulatorThread:
+class GptLiveEmulatorThread(ThreadedEmulator[gpt_live.GptLiveEmulator]):
+    """The GPT-Live emulator."""
+
+    def __init__(self, script: live.Script) -> None:
+        super().__init__(gpt_live.start(script=script))
+
+    def provider_settings(self) -> dict[str, Any]:
+        return {"type": "gpt_live", "websocket_base_url": self.handle.websocket_base_url}
+
+    def received_types(self) -> list[str]:
+        return self._read(self.handle.received_types)
+
+
+AnyScript = Script | gemini.Script | live.Script
+AnyEmulator = EmulatorThread | GeminiEmulatorThread | GptLiveEmulatorThread
+
+
+def emulator_for(provider: str, script: AnyScript) -> AnyEmulator:
     if provider == "gemini":
         assert isinstance(script, gemini.Script)
         return GeminiEmulatorThread(script)
+    if provider == "gpt_live":
+        assert isinstance(script, live.Script)
+        return GptLiveEmulatorThread(script)
     assert isinstance(script, Script)
     return EmulatorThread(script)
 
@@ -351,7 +372,7 @@ class ExtraNode:
 @dataclass
 class AgentGraph:
     bench: BenchNode
-    emulator: EmulatorThread | GeminiEmulatorThread
+    emulator: AnyEmulator
     processes: list[Process]
     wav: Path | None = None  # what the player played (its header is written when it stops)
 
@@ -362,7 +383,7 @@ class AgentGraph:
 
 @contextmanager
 def agent_graph(
-    script: Script | gemini.Script,
+    script: AnyScript,
     label: str,
     provider: str = "openai",
     forwarder: tuple[str, ...] | None = None,

@@ -2,17 +2,19 @@
 (the VAD's end-marker chunk published on prompt_voice) → the first reply audio at the player
 (its playback_status reporting the new stream speaking; also the first `audio_played` block).
 
-Real processes: ros_ai_bridge, simple_audio_player (real-time WAV sink), `byc agent` (OpenAI or
-Gemini provider, official SDK) → that provider's emulator answering at once (pace 0) on a thread
-here (Gemini's over TLS). The bench node stands in for the VAD: 3 chunks of 100 ms every 100 ms,
-then the end-marker chunk. Includes the model's stand-in: commit (OpenAI) or activityEnd (Gemini)
-→ transcription → reply events on the emulator (a few ms).
+Real processes: ros_ai_bridge, simple_audio_player (real-time WAV sink), `byc agent` (OpenAI,
+Gemini or GPT-Live provider, official SDK) → that provider's emulator answering at once (pace 0) on
+a thread here (Gemini's over TLS). The bench node stands in for the VAD: 3 chunks of 100 ms every
+100 ms, then the end-marker chunk. Includes the model's stand-in: commit (OpenAI) or activityEnd
+(Gemini) → transcription → reply events on the emulator (a few ms). GPT-Live has no commit: the
+model hears the user stop, so its figure includes the emulator's end-of-speech wait
+(`end_silence_ms` of the silence the provider streams at real time); `own` subtracts that wait.
 
 Baselines in the same run: one raw DDS publish→subscribe of the same chunk, one raw WebSocket round
 trip of it. The turn crosses 3 DDS hops (bench→bridge, bridge→player, player→bench) and 2 WebSocket
 round trips (bridge⇄agent, agent⇄emulator), so `floor` = 3 x DDS p50 + 2 x WebSocket p50.
 
-    scripts/run.sh python bench/bench_agent_latency.py [--turns N] [--provider openai|gemini|all]
+    scripts/run.sh python bench/bench_agent_latency.py [--turns N] [--provider openai|gemini|gpt_live|all]
     unshare -n bash -c 'ip link set lo up; scripts/run.sh python bench/bench_agent_latency.py'
 """
 
@@ -44,10 +46,12 @@ from _agent_bench import (  # noqa: E402
 )
 
 from by_your_command.emulators import gemini_script as gemini  # noqa: E402
+from by_your_command.emulators import gpt_live_script as live  # noqa: E402
 from by_your_command.emulators.openai_script import Say, Script  # noqa: E402
 
 WARMUP_TURNS = 2
 GOAL_P95_MS = 30.0
+LIVE_END_SILENCE_MS = 300  # the GPT-Live emulator's end-of-speech wait (the real model's is its own)
 
 
 def speech_like(seconds: float, seed: int) -> np.ndarray:
@@ -63,12 +67,18 @@ def measure(provider: str, turns: int) -> dict[str, list[float]]:
     to_status: list[float] = []
     to_played: list[float] = []
     agent_first_audio: list[float] = []
-    script: Script | gemini.Script = (
-        gemini.Script(default_reply=gemini.Say("Okay."), pace=0.0, ms_per_char=40)
-        if provider == "gemini"
-        else Script(default_reply=Say("Okay."), pace=0.0, ms_per_char=40)
-    )
-    with agent_graph(script, "latency", provider) as graph:
+    script: Script | gemini.Script | live.Script
+    settings: dict[str, Any] = {}
+    if provider == "gemini":
+        script = gemini.Script(default_reply=gemini.Say("Okay."), pace=0.0, ms_per_char=40)
+    elif provider == "gpt_live":
+        script = live.Script(
+            default_reply=live.Say("Okay."), pace=0.0, ms_per_char=40, end_silence_ms=LIVE_END_SILENCE_MS
+        )
+        settings["echo_mode"] = "aec"  # full duplex: a gated mic is refused
+    else:
+        script = Script(default_reply=Say("Okay."), pace=0.0, ms_per_char=40)
+    with agent_graph(script, "latency", provider, **settings) as graph:
         bench = graph.bench
         known: set[str] = set()
         for turn in range(WARMUP_TURNS + turns):
@@ -112,9 +122,8 @@ def measure(provider: str, turns: int) -> dict[str, list[float]]:
                 to_played.append(1000 * (played.at - ended))
                 if record["first_audio_ms"] is not None:
                     agent_first_audio.append(float(record["first_audio_ms"]))
-        ends = graph.emulator.received_types().count(
-            "activityEnd" if provider == "gemini" else "input_audio_buffer.commit"
-        )
+        end_event = {"gemini": "activityEnd", "openai": "input_audio_buffer.commit"}.get(provider)
+        ends = graph.emulator.received_types().count(end_event) if end_event else WARMUP_TURNS + turns
     assert ends == WARMUP_TURNS + turns, (
         f"{ends} turns ended at the {provider} emulator, not {WARMUP_TURNS + turns}"
     )
@@ -144,6 +153,10 @@ def main() -> int:
     rows: list[tuple[str, list[float], str]] = []
     for provider, figures in measured.items():
         to_status = figures["end_marker_to_speaking_status_ms"]
+        if provider == "gpt_live":  # the model's own end-of-speech wait is not ours: compare the rest
+            figures["end_marker_to_speaking_status_ms_with_model_wait"] = to_status
+            to_status = [value - LIVE_END_SILENCE_MS for value in to_status]
+            figures["end_marker_to_speaking_status_ms"] = to_status
         for name, values in figures.items():
             print(
                 json.dumps(

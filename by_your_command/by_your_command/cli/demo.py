@@ -2,6 +2,7 @@
 
     byc demo                          # offline agent, bundled speech; --out DIR: where results go
     byc demo --provider openai        # OpenAI Realtime (OPENAI_API_KEY): mic + speaker if present
+    byc demo --provider gpt-live      # OpenAI GPT-Live, full duplex (OPENAI_API_KEY; echo cancelled)
     byc demo --input my.wav --out /tmp/demo
 
 Starts the profile's graph as a child `byc up` (the same supervisor, the same graph description),
@@ -45,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--provider",
         choices=list(PROVIDERS),
         default="offline",
-        help="offline (default: no network, no key), openai (OPENAI_API_KEY), gemini (GEMINI_API_KEY)",
+        help="offline (default: no network, no key), openai (OPENAI_API_KEY), gemini (GEMINI_API_KEY), "
+        "gpt-live (OPENAI_API_KEY)",
     )
     parser.add_argument("--input", type=Path, help="a speech WAV to play instead of the bundled one")
     parser.add_argument(

@@ -32,6 +32,7 @@ PROVIDERS: dict[str, Provider] = {
         Provider("offline", "offline", "the offline agent (no network, no API key)"),
         Provider("openai", "oai_realtime", "an OpenAI Realtime agent", ("OPENAI_API_KEY",)),
         Provider("gemini", "gemini_live", "a Gemini Live agent", ("GEMINI_API_KEY", "GOOGLE_API_KEY")),
+        Provider("gpt-live", "gpt_live", "an OpenAI GPT-Live agent (full duplex)", ("OPENAI_API_KEY",)),
     )
 }
 

@@ -70,6 +70,7 @@ class GptLiveEmulator(LoopbackUrls):
         self.cursor = ScriptCursor(script)
         self.handshakes: list[Handshake] = []
         self.interruptions: list[Interruption] = []
+        self.refused_handshakes = 0  # upgrades answered with an HTTP error (a client retrying shows here)
         self._record = EventRecord(limits.max_recorded_bytes)
         self._server: Server | None = None
         self._connections: set[ServerConnection] = set()
@@ -110,6 +111,12 @@ class GptLiveEmulator(LoopbackUrls):
 
     # ---- handshake ----------------------------------------------------------------------------
     def _check_handshake(self, connection: ServerConnection, request: Request) -> Response | None:
+        refusal = self._refusal(connection, request)
+        if refusal is not None:
+            self.refused_handshakes += 1
+        return refusal
+
+    def _refusal(self, connection: ServerConnection, request: Request) -> Response | None:
         path = urlsplit(request.path).path
         if not path.rstrip("/").endswith(PATH_SUFFIX):
             return _http_error(connection, HTTPStatus.NOT_FOUND, "not_found", f"Invalid URL (GET {path})")

@@ -18,7 +18,7 @@ import yaml
 from by_your_command.graph.params import GraphError
 
 ECHO_MODES = ("gate", "aec", "external")
-PROVIDERS = ("openai", "gemini", "offline")
+PROVIDERS = ("openai", "gemini", "gpt_live", "offline")
 _NAME_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -40,7 +40,7 @@ class GraphOptions:
     )
     agents: bool = _option(True, "start the profile's agents (false: run them elsewhere)")
     bridge_port: int = _option(9090, "ros_ai_bridge's port; the agents started here connect to it")
-    provider: str = _option("offline", "openai | gemini | offline: picks agent_<provider>*.yaml")
+    provider: str = _option("offline", "openai | gemini | gpt_live | offline: picks agent_<provider>*.yaml")
     model: str = _option("", "the (conversation) agent's model; empty = its config file's")
     cmd_model: str = _option("", "dual profiles: the command agent's model; empty = its config file's")
     voice: str = _option("", "the speaking agent's voice; empty = its config file's")

@@ -1,8 +1,9 @@
 """The profiles: which nodes and agents make each graph, and with which parameters.
 
 Names follow the earlier project's launch files (byc, oai_realtime, oai_dual_agent, gemini_live,
-gemini_dual_agent) plus offline. Node parameters start from the config files in config/ (the node's
-section), then what the profile and options set, then `node.param` overrides: later wins.
+gemini_dual_agent) plus offline and gpt_live. Node parameters start from the config files in
+config/ (the node's section), then what the profile and options set, then `node.param` overrides:
+later wins.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
 
+from by_your_command.agents.app_config import FULL_DUPLEX
 from by_your_command.graph.model import AgentSpec, Graph, NodeSpec
 from by_your_command.graph.options import GraphOptions
 from by_your_command.graph.params import GraphError, Locate, check_parameters, config_parameters
@@ -72,6 +74,14 @@ PROFILES: dict[str, Profile] = {
             defaults={"provider": "gemini", "pause_timeout": "2.0"},
         ),
         Profile(
+            "gpt_live",
+            "one OpenAI GPT-Live agent (full duplex: echo-cancelled microphone) that talks and acts",
+            Agents.SINGLE,
+            # GPT-Live hears the microphone while it speaks and decides itself when the user talks
+            # over it: it needs the robot's own voice cancelled (aec), never a gated mic.
+            defaults={"provider": "gpt_live", "echo_mode": "aec", "pause_timeout": "2.0"},
+        ),
+        Profile(
             "offline",
             "the offline agent: no network, no API key",
             Agents.SINGLE,
@@ -79,6 +89,9 @@ PROFILES: dict[str, Profile] = {
         ),
     )
 }
+
+# Providers with one agent config (it talks and acts), no conversation / command pair.
+SINGLE_AGENT_PROVIDERS = {"offline": "agent_offline.yaml", "gpt_live": "agent_gpt_live.yaml"}
 
 # Options that only mean something where agents run.
 AGENT_OPTIONS = frozenset(
@@ -209,10 +222,13 @@ def _agents(chosen: Profile, options: GraphOptions) -> tuple[AgentSpec, ...]:
 
     if chosen.agents is Agents.SINGLE:
         # One agent that talks and sends commands: the cloud providers' tool mode (robot_command).
-        single = (
-            "agent_offline.yaml" if options.provider == "offline" else f"agent_{options.provider}_tool.yaml"
-        )
+        single = SINGLE_AGENT_PROVIDERS.get(options.provider, f"agent_{options.provider}_tool.yaml")
         return (AgentSpec("agent", config(single), overrides(options.model, options.voice)),)
+    if options.provider in SINGLE_AGENT_PROVIDERS:
+        raise GraphError(
+            f"option provider: {options.provider} has one agent that talks and acts, no conversation "
+            f"and command pair: use profile {options.provider}"
+        )
     return (
         AgentSpec(
             "conversation_agent",
@@ -227,9 +243,22 @@ def _agents(chosen: Profile, options: GraphOptions) -> tuple[AgentSpec, ...]:
     )
 
 
+def _check_echo_mode(chosen: Profile, options: GraphOptions) -> None:
+    """A full-duplex agent with a gated microphone would never hear the user over the robot, and
+    the agent refuses it: say so before anything starts."""
+    if chosen.agents is Agents.NONE or not options.agents:
+        return
+    if options.provider in FULL_DUPLEX and options.echo_mode == "gate":
+        raise GraphError(
+            f"option echo_mode: provider {options.provider} is full duplex and needs the echo-cancelled "
+            "microphone: echo_mode aec (or external, where the hardware cancels the echo), not gate"
+        )
+
+
 def build_graph(name: str, options: GraphOptions, locate: Locate = find_config_file) -> Graph:
     """The graph of profile `name` with `options`; GraphError when a value or a file is wrong."""
     chosen = profile(name)
+    _check_echo_mode(chosen, options)
     drafts = _drafts(chosen, options)
     names = [draft.name for draft in drafts]
     unknown = sorted(set(options.parameters) - set(names))

@@ -9,6 +9,7 @@ import sys
 import wave
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -131,26 +132,26 @@ EMULATOR_SCRIPT = {
 }
 
 
-@pytest.mark.e2e
-def test_the_cloud_demo_narrates_the_graph_with_an_emulated_provider(
-    ros_namespace: str, tmp_path: Path
-) -> None:
-    script = tmp_path / "script.yaml"
-    script.write_text(yaml.safe_dump(EMULATOR_SCRIPT))
-    emulate = [sys.executable, "-m", "by_your_command.cli.byc", "emulate", "openai", "--port", "0"]
-    with running_process([*emulate, "--script", str(script)]) as emulator:
-        assert emulator.stdout is not None
-        url = wait_for(lambda: _LISTENING.search(emulator.stdout.readline() if emulator.stdout else ""), 30)
+def run_emulated_demo(
+    emulator: str, script: dict[str, Any], provider: str, tmp_path: Path, namespace: str
+) -> DemoRun:
+    """`byc demo --provider provider` on the bundled speech, against `byc emulate emulator`
+    speaking `script` (the demo's narration and results are the run's)."""
+    script_file = tmp_path / "script.yaml"
+    script_file.write_text(yaml.safe_dump(script))
+    emulate = [sys.executable, "-m", "by_your_command.cli.byc", "emulate", emulator, "--port", "0"]
+    with running_process([*emulate, "--script", str(script_file)]) as process:
+        assert process.stdout is not None
+        url = wait_for(lambda: _LISTENING.search(process.stdout.readline() if process.stdout else ""), 30)
         env = {**os.environ, "OPENAI_API_KEY": "sk-emulator", "OPENAI_BASE_URL": f"http://{url[1]}/v1"}
-        out_dir = tmp_path / "out"
         # --input: the file, also where a microphone and a speaker exist
-        namespace = ros_namespace.strip("/")
-        args = ("--provider", "openai", "--input", str(bundled_speech()), "--namespace", namespace)
-        run = run_demo(*args, env=env, out_dir=out_dir)
-    assert run.status == 0, run.explain()
-    assert "an OpenAI Realtime agent" in run.out  # no sound card here: the bundled file, a WAV
-    accepted = run.accepted()
-    assert accepted == {
+        args = ("--provider", provider, "--input", str(bundled_speech()), "--namespace", namespace.strip("/"))
+        return run_demo(*args, env=env, out_dir=tmp_path / "out")
+
+
+def assert_the_demo_was_followed(run: DemoRun, out_dir: Path) -> None:
+    """The bundled speech's commands routed, its question answered, asleep and awake again, heard."""
+    assert run.accepted() == {
         "lookup": "arm_preset",
         "pan@left": "arm_preset",
         "sleep": "behavior_command",
@@ -158,10 +159,48 @@ def test_the_cloud_demo_narrates_the_graph_with_an_emulated_provider(
     }, run.explain()
     events = run.events()
     assert ("heard", '"what time is it"') in events and ("robot", '"It is half past eleven."') in events
-    assert [kind for kind, _ in events].count("latency") == 5, run.explain()
     attention = [detail for kind, detail in events if kind == "attention"]
     assert attention[attention.index("asleep") - 1 :][:3] == ["awake", "asleep", "awake"], run.explain()
     assert audible_seconds(out_dir / "robot_said.wav") > 2.0, run.explain()
+
+
+@pytest.mark.e2e
+def test_the_cloud_demo_narrates_the_graph_with_an_emulated_provider(
+    ros_namespace: str, tmp_path: Path
+) -> None:
+    run = run_emulated_demo("openai", EMULATOR_SCRIPT, "openai", tmp_path, ros_namespace)
+    assert run.status == 0, run.explain()
+    assert "an OpenAI Realtime agent" in run.out  # no sound card here: the bundled file, a WAV
+    assert [kind for kind, _ in run.events()].count("latency") == 5, run.explain()
+    assert_the_demo_was_followed(run, tmp_path / "out")
+
+
+# The same demo through the GPT-Live emulator: the model takes its turn when it hears the user stop
+# (energy), and robot commands are client delegations, which the agent turns into robot_command
+# calls with the words heard (the emulator's `heard`, here the commands themselves).
+GPT_LIVE_SCRIPT = {
+    "pace": 1.0,
+    "default_reply": "I did not catch that.",
+    "turns": [
+        {"heard": "lookup", "delegate": True, "then": "Looking up."},
+        {"heard": "pan@left", "delegate": True, "then": "Panning left."},
+        {"heard": "what time is it", "say": "It is half past eleven."},
+        {"heard": "sleep", "delegate": True, "then": "Good night."},
+        # "turn right" is said asleep and never reaches the agent; "wake up" wakes the VAD itself
+        {"heard": "stop", "delegate": True, "then": "Stopping."},
+    ],
+}
+
+
+@pytest.mark.e2e
+def test_the_gpt_live_demo_runs_full_duplex_behind_the_echo_canceller(
+    ros_namespace: str, tmp_path: Path
+) -> None:
+    run = run_emulated_demo("gpt-live", GPT_LIVE_SCRIPT, "gpt-live", tmp_path, ros_namespace)
+    assert run.status == 0, run.explain()
+    assert "an OpenAI GPT-Live agent (full duplex)" in run.out
+    assert re.search(r"profile gpt_live: .*echo_suppressor", run.out), run.explain()  # aec by default
+    assert_the_demo_was_followed(run, tmp_path / "out")
 
 
 @pytest.mark.e2e
@@ -177,7 +216,11 @@ def test_a_node_that_dies_fails_the_demo_and_is_named(ros_namespace: str, tmp_pa
 @pytest.mark.unit
 @pytest.mark.parametrize(
     ("provider", "variables"),
-    [("openai", ("OPENAI_API_KEY",)), ("gemini", ("GEMINI_API_KEY", "GOOGLE_API_KEY"))],
+    [
+        ("openai", ("OPENAI_API_KEY",)),
+        ("gemini", ("GEMINI_API_KEY", "GOOGLE_API_KEY")),
+        ("gpt-live", ("OPENAI_API_KEY",)),
+    ],
 )
 def test_a_cloud_demo_without_its_key_says_what_is_missing_and_exits_2(
     provider: str, variables: tuple[str, ...], tmp_path: Path

@@ -20,6 +20,7 @@ AGENT_CONFIGS = {
     "agent_gemini.yaml": {"agent_id": "gemini", "provider": {"model": "g-live"}},
     "agent_gemini_tool.yaml": {"agent_id": "gemini_tool", "provider": {"model": "g-live"}},
     "agent_gemini_command.yaml": {"agent_id": "gemini_cmd", "role": "command"},
+    "agent_gpt_live.yaml": {"agent_id": "live", "provider": {"type": "gpt_live", "model": "live-model"}},
     "agent_offline.yaml": {"agent_id": "offline", "provider": {"grammar": "commands"}},
 }
 

@@ -255,7 +255,7 @@ class GptLiveProvider:
         async with self._input_order:
             self._input.in_utterance = True  # no silence spliced into the speech from here
             await self._append(connection, pcm)
-            self._input.sent(len(pcm) // 2, now)
+            self._input.speech_sent(now)
         if not self.muted:  # muted speech never reaches the model: it cannot yield to it
             self._translator.user_speech(now, starts=starts)
 
@@ -280,7 +280,6 @@ class GptLiveProvider:
                         self.silence_skipped_s += plan.skipped / self.config.sample_rate
                     if plan.samples and not self._closed:
                         await self._append(connection, bytes(2 * plan.samples))
-                        self._input.sent(plan.samples, loop.time())
         except ProviderClosed:
             return  # the connection is gone: the reader ends the session
 

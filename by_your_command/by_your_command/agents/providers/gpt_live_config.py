@@ -18,7 +18,7 @@ class GptLiveConfig:
     sample_rate: Literal[16000, 24000] = 24000
     # The input is one stream in real time: between utterances (our VAD sends speech only) silence
     # is appended every `input_tick_ms`, so the model hears the user stop and time pass.
-    input_tick_ms: int = 100
+    input_tick_ms: int = 20  # the tick adds up to this to when the model hears the user stop
     max_catch_up_ms: int = 1000  # a stalled loop skips what it is behind beyond this (never a burst)
     # Output deltas carry no reply id and no event ends a reply: one ends after this much quiet.
     # Above the delta cadence (100 ms) plus network jitter; it delays only the reply's bookkeeping.
@@ -43,8 +43,8 @@ class GptLiveConfig:
     def __post_init__(self) -> None:
         if not self.model or not self.voice or not self.delegation_tool:
             raise ValueError("model, voice and delegation_tool must not be empty")
-        if not 20 <= self.input_tick_ms <= 1_000:
-            raise ValueError("input_tick_ms must be within 20..1000")
+        if not 10 <= self.input_tick_ms <= 1_000:
+            raise ValueError("input_tick_ms must be within 10..1000")
         if not self.input_tick_ms <= self.max_catch_up_ms <= 10_000:
             raise ValueError("max_catch_up_ms must be within input_tick_ms..10000")
         if not 50 <= self.reply_end_gap_ms <= 10_000:

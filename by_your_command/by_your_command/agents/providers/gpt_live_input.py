@@ -2,11 +2,11 @@
 utterances).
 
 Our VAD forwards speech only (with its pre-roll), so between utterances nothing comes: the model
-would not hear the user stop, nor time pass. `InputClock` says how much silence keeps the stream at
-real time: none while an utterance is open (its audio comes at the microphone's pace; silence
-spliced into speech would break words), and, between utterances, what the stream is behind the
-clock. A pre-roll sent at once puts the stream ahead of the clock: the silence then waits until
-the clock catches up, so the model always hears time as it passed, never faster.
+would not hear the user stop, nor time pass. `InputClock` says how much silence keeps the stream
+going: none while an utterance is open (its audio comes at the microphone's pace; silence spliced
+into speech would break words), and, between utterances, the time since the stream last covered
+real time. Live audio arrives when it has been said, so a speech chunk covers time up to its
+arrival; the silence after an utterance starts there, with no gap and no overlap.
 """
 
 from __future__ import annotations
@@ -24,32 +24,26 @@ class InputClock:
     def __init__(self, sample_rate: int, max_catch_up_s: float) -> None:
         self.sample_rate = sample_rate
         self.max_catch_up = int(sample_rate * max_catch_up_s)
-        self._origin: float | None = None  # when the stream's first sample counts as played
-        self._sent = 0  # samples appended (speech and silence)
+        self._covered: float | None = None  # real time the stream has covered up to
         self.in_utterance = False
 
-    @property
-    def started(self) -> bool:
-        return self._origin is not None
-
     def start(self, now: float) -> None:
-        if self._origin is None:
-            self._origin = now
+        if self._covered is None:
+            self._covered = now
 
-    def sent(self, samples: int, now: float) -> None:
-        self.start(now)
-        self._sent += samples
+    def speech_sent(self, now: float) -> None:
+        """Speech appended: it was said by now (a pre-roll sent at once is older, never newer)."""
+        self._covered = now
 
     def silence_due(self, now: float) -> SilencePlan:
-        """The silence to append now; after a stall longer than max_catch_up, the rest is skipped
-        (the clock moves on) rather than sent as a burst the model would take as a long pause."""
-        if self._origin is None or self.in_utterance:
+        """The silence to append now (the stream then covers up to `now`); after a stall longer
+        than max_catch_up the rest is skipped rather than sent as one long pause at once."""
+        if self._covered is None or self.in_utterance:
             return SilencePlan(0, 0)
-        behind = round((now - self._origin) * self.sample_rate) - self._sent
+        behind = round((now - self._covered) * self.sample_rate)
         if behind <= 0:
             return SilencePlan(0, 0)
+        self._covered = now
         if behind > self.max_catch_up:
-            skipped = behind - self.max_catch_up
-            self._origin += skipped / self.sample_rate
-            return SilencePlan(self.max_catch_up, skipped)
+            return SilencePlan(self.max_catch_up, behind - self.max_catch_up)
         return SilencePlan(behind, 0)

@@ -261,17 +261,15 @@ def test_the_input_clock_fills_silence_between_utterances_at_real_time() -> None
     assert clock.silence_due(1.0) == SilencePlan(0, 0)  # not started
     clock.start(1.0)
     assert clock.silence_due(1.1) == SilencePlan(100, 0)
-    clock.sent(100, 1.1)
     clock.in_utterance = True
+    clock.speech_sent(1.3)
     assert clock.silence_due(1.5) == SilencePlan(0, 0)  # never spliced into speech
-    clock.sent(900, 1.5)  # a pre-roll at once: the stream is ahead of the clock
+    clock.speech_sent(1.6)  # the last chunk: said by the time it came
     clock.in_utterance = False
-    assert clock.silence_due(1.9) == SilencePlan(0, 0)  # 1000 samples sent by 0.9 s: wait
-    assert clock.silence_due(2.2) == SilencePlan(200, 0)
-    clock.sent(200, 2.2)
-    assert clock.silence_due(5.2) == SilencePlan(500, 2500)  # a stall: no 3 s burst, the clock moves on
-    clock.sent(500, 5.2)
-    assert clock.silence_due(5.3) == SilencePlan(100, 0)
+    assert clock.silence_due(1.65) == SilencePlan(50, 0)  # silence from there on, no gap, no overlap
+    assert clock.silence_due(1.65) == SilencePlan(0, 0)
+    assert clock.silence_due(4.65) == SilencePlan(500, 2500)  # a stall: no 3 s burst, the clock moves on
+    assert clock.silence_due(4.75) == SilencePlan(100, 0)
 
 
 def test_errors_are_typed_and_never_quote_the_key() -> None:
@@ -474,7 +472,7 @@ def test_silence_follows_each_utterance_at_real_time() -> None:
     script = Script(turns=(Turn(Say("Hi"), heard="hello"),), pace=0)
 
     async def body(emulator: GptLiveEmulator, provider: GptLiveProvider) -> None:
-        started = asyncio.get_running_loop().time()
+        started = asyncio.get_running_loop().time() - 0.05  # the silence began at the connect, just before
         await provider.send_audio(speech(400))
         await provider.end_of_turn()  # no silence appended here: it follows at the clock's pace
         await take_until(provider.events(), is_done)  # the model heard the user stop
@@ -483,8 +481,8 @@ def test_silence_follows_each_utterance_at_real_time() -> None:
             len(base64.b64decode(event["audio"])) // 2
             for event in sent(emulator, "session.input_audio.append")
         )
-        # The stream never runs ahead of real time beyond the utterance's own audio.
-        assert appended <= 24_000 * (elapsed + 0.4 + 0.1)
+        # Silence covers the time after the speech at real time: never more than has passed.
+        assert appended <= 24_000 * (elapsed + 0.4)
         assert appended > 24_000 * 0.4  # speech, then silence
 
     run(body, script, input_tick_ms=20)

@@ -1,0 +1,151 @@
+"""Helpers for the GPT-Live graph tests: the GPT-Live emulator (`byc emulate gpt-live`'s server) on
+its own event-loop thread, and a graph of real nodes (player with a WAV sink, command processor,
+ros_ai_bridge) with `byc agent --config agent_gpt_live.yaml` pointed at it."""
+
+from __future__ import annotations
+
+import base64
+import signal
+import subprocess
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from agent_graph import (
+    CONFIG_DIR,
+    FAKE_KEY,
+    GraphProbe,
+    Output,
+    agent_process,
+    alive,
+    bridge_process,
+    graph_probe,
+    player_process,
+    processor_process,
+    setup_requests,
+)
+
+from by_your_command.audio.pcm import StreamResampler
+from by_your_command.emulators import gpt_live
+from by_your_command.emulators.gpt_live_script import Script
+from by_your_command.emulators.threaded import ThreadedEmulator
+
+
+class GptLiveEmulatorThread(ThreadedEmulator[gpt_live.GptLiveEmulator]):
+    """`emulators.gpt_live` served from a private loop; every read hops onto that loop."""
+
+    def __init__(self, script: Script) -> None:
+        super().__init__(gpt_live.start(script=script))
+        self.url = self.handle.websocket_base_url
+
+    def received(self, connection: int | None = None) -> list[dict[str, Any]]:
+        records = self._read(lambda: list(self.handle.received))
+        return [r.event for r in records if connection is None or r.connection == connection]
+
+    def types(self, connection: int | None = None) -> list[str]:
+        return [str(event["type"]) for event in self.received(connection)]
+
+    def session_start(self, connection: int) -> dict[str, Any]:
+        [start] = [e["session"] for e in self.received(connection) if e["type"] == "session.start"]
+        return dict(start)
+
+    def appended(self, connection: int) -> bytes:
+        """The PCM the client appended to the session's input stream, in order."""
+        events = self.received(connection)
+        return b"".join(
+            base64.b64decode(e["audio"]) for e in events if e["type"] == "session.input_audio.append"
+        )
+
+    def connections(self) -> int:
+        return self._read(lambda: len(self.handle.handshakes))
+
+    def open_connections(self) -> int:
+        return self._read(lambda: self.handle.open_connections)
+
+    def refused_handshakes(self) -> int:
+        return self._read(lambda: self.handle.refused_handshakes)
+
+
+def at_24k(pcm: np.ndarray) -> bytes:
+    """A 16 kHz utterance as the agent sends it: resampled to the session's 24 kHz."""
+    resampler = StreamResampler(16000, 24000)
+    return np.concatenate([resampler.push(pcm), resampler.flush()]).astype("<i2").tobytes()
+
+
+def gpt_live_agent_config(
+    tmp_path: Path, api: GptLiveEmulatorThread, **settings: Any
+) -> tuple[Path, dict[str, Any]]:
+    """The shipped agent_gpt_live.yaml pointed at the emulator, with the echo-cancelled microphone
+    (echo_mode aec, as the gpt_live profile runs it); `settings` override AgentConfig keys,
+    `provider` is merged into the provider's."""
+    data: dict[str, Any] = yaml.safe_load((CONFIG_DIR / "agent_gpt_live.yaml").read_text())
+    provider = {**data["provider"], "websocket_base_url": api.url}
+    data.update(echo_mode="aec", pause_timeout_s=60.0)  # no pause cycling unless a test asks
+    data.update(settings)
+    data["provider"] = {**provider, **settings.get("provider", {})}
+    path = tmp_path / f"{data['agent_id']}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path, data
+
+
+@dataclass
+class LiveGraph:
+    api: GptLiveEmulatorThread
+    probe: GraphProbe
+    agent: subprocess.Popen[str]
+    agent_out: Output
+    check: Any  # fails at once when a process of the graph died
+    player: subprocess.Popen[str] | None
+
+    def stop_agent(self) -> list[str]:
+        """SIGTERM, as Ctrl-C or `ros2 launch` would: the agent closes its session and exits 0."""
+        self.agent.send_signal(signal.SIGTERM)
+        assert self.agent.wait(timeout=30) == 0, str(self.agent_out)
+        lines = self.agent_out.finish()
+        assert FAKE_KEY not in "\n".join(lines), "the API key reached a log line"
+        return lines
+
+    def stop_player(self) -> None:
+        """SIGTERM: the WAV sink writes what had sounded and closes the file."""
+        assert self.player is not None
+        self.player.send_signal(signal.SIGTERM)
+        self.player.wait(timeout=30)
+
+    def records(self, kind: str) -> list[dict[str, Any]]:
+        return [r for r in self.probe.metric_records() if r["record"] == kind]
+
+    def finished_streams(self) -> list[str]:
+        return [s.stream_id for s in list(self.probe.playback) if s.finished]
+
+
+@contextmanager
+def live_graph(
+    namespace: str,
+    tmp_path: Path,
+    script: Script,
+    wav: Path | None = None,
+    processor: bool = False,
+    key: str = FAKE_KEY,
+    options: tuple[str, ...] = (),
+    **settings: Any,
+) -> Iterator[LiveGraph]:
+    """Emulator, probe, the nodes asked for, bridge, and `byc agent` on agent_gpt_live.yaml, ready."""
+    with ExitStack() as stack:
+        api = stack.enter_context(GptLiveEmulatorThread(script))
+        probe = stack.enter_context(graph_probe(namespace))
+        nodes: list[subprocess.Popen[str]] = []
+        player = stack.enter_context(player_process(namespace, wav)) if wav is not None else None
+        if player is not None:
+            nodes.append(player)
+        if processor:
+            nodes.append(stack.enter_context(processor_process(namespace)))
+        probe.wait_nodes(alive(*nodes), player is not None, processor)
+        port, _ = stack.enter_context(bridge_process(namespace))
+        config, data = gpt_live_agent_config(tmp_path, api, **settings)
+        agent, agent_out = stack.enter_context(agent_process(config, port, key, *options))
+        probe.wait_agents_ready(namespace, [setup_requests(data)], 60.0)
+        yield LiveGraph(api, probe, agent, agent_out, alive(agent, *nodes), player)
