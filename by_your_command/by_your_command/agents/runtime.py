@@ -101,6 +101,7 @@ from by_your_command.agents.session import (
     AddContext,
     EndOfTurn,
     Interrupt,
+    MuteInput,
     SendAudio,
     SendImage,
     SendText,
@@ -447,6 +448,13 @@ class AgentRuntime:
         elif isinstance(item, AttentionChanged):
             if item.state is not self._attention:
                 log.info("agent %s: attention %s", self.config.agent_id, item.state.value)
+                was_awake = self._attention is Attention.AWAKE
+                if (
+                    self._duplex
+                    and self._session is not None
+                    and was_awake != (item.state is Attention.AWAKE)
+                ):
+                    self._session.send(MuteInput(was_awake))  # asleep or muted: so is the model's input
             self._attention = item.state
         elif isinstance(item, CameraFrame):
             self._on_frame(item)
@@ -1552,6 +1560,8 @@ class AgentRuntime:
         )
         session = Session(self._serial, provider, setup, timeouts, self._clock, self._from_session)
         self._duplex = bool(getattr(provider, "duplex", False))
+        if self._duplex and self._attention is not Attention.AWAKE:
+            session.send(MuteInput(True))  # opened asleep (a running action's result): input muted
         self._session_conversation = self.context.serial
         session.start(delay_s=max(0.0, self._not_before - now, (self._reconnect_at or now) - now))
         self._session = session
@@ -1575,6 +1585,14 @@ class AgentRuntime:
         self._recycle = ""
         self._results.clear()  # results only its own responses could take
         billed = await session.close()
+        if session.opened_at is None:  # refused or never connected: the vendor bills nothing
+            billed = 0.0
+            log.info(
+                "agent %s: session %d ended before it opened (%s)",
+                self.config.agent_id,
+                session.serial,
+                reason,
+            )
         record = SessionMetrics(
             self.config.agent_id,
             self.context.conversation_id,
@@ -1585,7 +1603,8 @@ class AgentRuntime:
             session.usage,
             session.provider.name,
         )
-        log.info(
+        log.log(
+            logging.INFO if session.opened_at is not None else logging.DEBUG,
             "agent %s: session %d closed (%s): billed %.1f s, %d turns, tokens in %d out %d",
             self.config.agent_id,
             session.serial,

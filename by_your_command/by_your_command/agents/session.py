@@ -68,8 +68,23 @@ class Interrupt:
     played_ms: int
 
 
+@dataclass(frozen=True)
+class MuteInput:
+    """A full-duplex session's input muted (asleep, muted) or not: the provider's own mute."""
+
+    muted: bool
+
+
 Operation = (
-    SendAudio | EndOfTurn | SendText | AddContext | SendImage | SendToolResults | SendToolProgress | Interrupt
+    SendAudio
+    | EndOfTurn
+    | SendText
+    | AddContext
+    | SendImage
+    | SendToolResults
+    | SendToolProgress
+    | Interrupt
+    | MuteInput
 )
 
 
@@ -226,6 +241,10 @@ class Session:
             await provider.send_tool_results(operation.results)
         elif isinstance(operation, SendToolProgress):
             await provider.send_tool_progress(operation.call_id, operation.text)
+        elif isinstance(operation, MuteInput):
+            mute = getattr(provider, "mute" if operation.muted else "unmute", None)
+            if mute is not None:  # only full-duplex providers have an input to mute
+                await mute()
         else:
             await provider.interrupt(operation.response_id, operation.item_id, operation.played_ms)
 

@@ -24,7 +24,7 @@ from by_your_command.agents.events import (
     Usage,
     UsageReport,
 )
-from by_your_command.agents.inputs import ToolCatalog
+from by_your_command.agents.inputs import Attention, AttentionChanged, ToolCatalog
 from by_your_command.agents.provider import ToolSpec
 from by_your_command.agents.robot_tool import TOOL_NAME
 
@@ -161,3 +161,28 @@ def test_a_delegation_matches_only_a_whole_declared_phrase() -> None:
         assert match_tool(not_it, [spec, dock]) is None
     twice = ToolSpec("undock", "", {}, spoken=(("dock", '{"undo": true}'),))
     assert match_tool("dock", [dock, twice]) is None  # said for two calls: neither is surely meant
+
+
+def test_sleep_and_mute_mute_the_models_input() -> None:
+    async def scenario() -> None:
+        factory = duplex(spoken_reply("r1", seconds=0.2))
+        async with running_agent(CONFIG, factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(0.5)
+            provider = factory.last
+            muting: list[bool] = []
+
+            async def mute() -> None:
+                muting.append(True)
+
+            async def unmute() -> None:
+                muting.append(False)
+
+            provider.mute, provider.unmute = mute, unmute  # type: ignore[attr-defined]
+            for state in (Attention.ASLEEP, Attention.MUTED, Attention.AWAKE, Attention.AWAKE):
+                agent.port.push(AttentionChanged(state))
+                await asyncio.sleep(0.01)
+            assert muting == [True, False]  # asleep then muted is still muted: one mute, one unmute
+            await agent.stop()
+
+    run_virtual(scenario())
