@@ -630,6 +630,7 @@ class AgentRuntime:
         if self._attention is not Attention.AWAKE:
             self.counters.ignored_not_awake += 1
             return
+        await self._rotate_before_a_new_turn()
         session = self._ensure_session()
         now = self._clock.now()
         self._turns += 1
@@ -824,7 +825,25 @@ class AgentRuntime:
                 reply.stream_id,
                 reply.heard_ms(now),
             )
+        await self._rotate_before_a_new_turn()
         self._ensure_session()  # the connect hides behind the utterance that follows
+
+    async def _rotate_before_a_new_turn(self) -> None:
+        """A rotation that is due happens before a new turn at the latest. With turns back to back
+        the session is never idle (the next question comes as the last reply ends), and it would
+        reach the provider's limit in the middle of one."""
+        if (
+            self._session is not None
+            and self._rotation_due(self._clock.now())
+            and self._turn_in is None
+            and self._turn_out is None
+            and not self._waiting
+            and self._barge is None
+            and len(self._tools) == 0
+            and not (self.robot_calls and self.config.keep_session_while_acting)
+            and self._reconnect_at is None
+        ):
+            await self._close_session("rotation before the limit")
 
     def _barge_deadline(self, barge: PendingBargeIn) -> float:
         """The end of the next window the judge has not seen yet (a fixed time: see _windows_passed)."""

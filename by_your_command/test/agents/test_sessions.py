@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from fake_port import FakePort, running_agent, speak
+from fake_port import FakePort, playing, running_agent, speak
 from fake_provider import FakeFactory, FakeProvider, spoken_reply
 from virtual_time import VirtualClock, run_virtual
 
@@ -16,6 +16,7 @@ from by_your_command.agents.inputs import (
     ConversationReset,
     InputLost,
     PlaybackStatus,
+    PromptText,
     SharedTurn,
     VoiceActivity,
 )
@@ -101,6 +102,33 @@ def test_rotation_before_the_provider_limit_happens_at_a_turn_boundary() -> None
         reasons = [s.close_reason for s in agent.port.sessions()]
         assert reasons[0] == "rotation before the limit"
         assert len(factory.created) == 2
+
+    run_virtual(scenario())
+
+
+def test_a_due_rotation_happens_before_the_next_turn_even_with_no_idle_moment_between_turns() -> None:
+    """The next question arrives before the player says the last reply ended (two topics: no order
+    between them): the session is never idle, and it must not reach the provider's limit."""
+
+    async def scenario() -> None:
+        def short_limit(provider: FakeProvider, index: int) -> None:
+            provider.max_session_s = 10.0
+
+        factory = FakeFactory(*[spoken_reply(f"r{i}", 1.0) for i in range(12)], configure=short_limit)
+        config = AgentConfig(rotation_margin_s=5.0, pause_timeout_s=100.0)
+        async with running_agent(config, factory) as agent:
+            for question in range(12):
+                agent.port.push(PromptText(f"question {question}"))
+                await asyncio.sleep(1.0)  # answered; it plays until the next question comes
+                for stream in agent.port.streams():
+                    agent.port.push(playing(stream, 900))
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        opened = [provider.names().count("text") for provider in factory.created]
+        assert sum(opened) == 12 and len(factory.created) >= 2
+        reasons = [s.close_reason for s in agent.port.sessions()]
+        assert reasons[0] == "rotation before the limit"
+        assert [t.outcome for t in agent.port.turns()] == ["completed"] * 12
 
     run_virtual(scenario())
 
