@@ -55,6 +55,9 @@ class PendingBargeIn:
     transcribing: bool = False
     transcriber_failed: bool = False  # then the speech's length alone decides
     windows_judged: int = 0  # windows that had passed when it was last judged (its deadline)
+    # Judged false while the user was still talking: the reply plays on, and the same utterance is
+    # judged again on what follows ("yeah... no wait, go left" must not lose its second half).
+    resumed: bool = False
 
 
 def judge(evidence: Evidence, rules: Rules) -> Verdict:

@@ -927,8 +927,14 @@ class AgentRuntime:
         self._barge = None
         self._barge_turn = None
         reply = barge.reply
+        now = self._clock.now()
+        if barge.resumed and verdict is Verdict.CONFIRMED and not reply.is_playing(now):
+            verdict = Verdict.FALSE  # the reply ended meanwhile: nothing to cut, an utterance like any
+            if turn is not None:
+                self._release_held(turn)
         if verdict is Verdict.CONFIRMED:
-            heard = self._cut_reply(reply, "barge_in", barge.started_at)
+            # Paused at the onset: cut where it paused; resumed since: cut where it plays now.
+            heard = self._cut_reply(reply, "barge_in", now if barge.resumed else barge.started_at)
             log.info(
                 "agent %s: barge-in confirmed (%.0f ms of speech, %s word(s)); %s cut at %d ms",
                 self.config.agent_id,
@@ -938,26 +944,38 @@ class AgentRuntime:
                 heard,
             )
             if turn is not None:
-                turn.held = False
-                if self._session is not None and turn.audio and not turn.deferred:
-                    self._session.send(SendAudio(bytes(turn.audio)))
+                self._release_held(turn)
         else:
-            self.counters.false_barge_ins += 1
-            if turn is not None and self._turn_in is turn:  # still talking, but too little too late: noise
-                self._turn_in = None
-                if turn.utterance_id is not None:
-                    self._closed_utterances.append(turn.utterance_id)
-            self._player(reply.stream_id, "false_barge_in", PlayerAction.RESUME)
-            log.info(
-                "agent %s: false barge-in (%.0f ms of speech, %s word(s)); %s resumed",
-                self.config.agent_id,
-                evidence.speech_ms,
-                "?" if evidence.words is None else evidence.words,
-                barge.stream_id,
-            )
+            if not barge.resumed:
+                self.counters.false_barge_ins += 1
+                self._player(reply.stream_id, "false_barge_in", PlayerAction.RESUME)
+                log.info(
+                    "agent %s: false barge-in (%.0f ms of speech, %s word(s)); %s resumed",
+                    self.config.agent_id,
+                    evidence.speech_ms,
+                    "?" if evidence.words is None else evidence.words,
+                    barge.stream_id,
+                )
+            still_talking = turn is not None and self._turn_in is turn
+            if still_talking and not reply.cut and reply.is_playing(now):
+                # The reply plays on, and what follows may still prove an interruption: the same
+                # utterance is judged again, a fresh window from now.
+                self._barge = PendingBargeIn(reply, reply.stream_id, now, resumed=True)
+                self._barge_turn = turn
+            elif still_talking and turn is not None:
+                self._release_held(turn)  # the reply is over: an utterance like any other
+            # an utterance that ended without proof stays held: never sent, never committed
         answered = self._turn_out
         if reply.generation_done and answered is not None and answered.number == reply.turn:
             await self._finish_turn(answered, "interrupted" if reply.cut else "completed")
+
+    def _release_held(self, turn: Turn) -> None:
+        """Speech held while a barge-in was judged is the user's: the model hears it now."""
+        if not turn.held:
+            return
+        turn.held = False
+        if self._session is not None and turn.audio and not turn.deferred:
+            self._session.send(SendAudio(bytes(turn.audio)))
 
     def _cut_reply(self, reply: ReplyAudio, reason: str, stopped_at: float) -> int:
         """Cut `reply` at the player and in the model's memory, at what was heard by `stopped_at`."""

@@ -113,6 +113,46 @@ def test_a_cough_resumes_the_same_stream_where_it_paused() -> None:
     run_virtual(scenario())
 
 
+class SaidSoFar:
+    """A transcriber that hears more words as more audio comes: `steps` of (seconds, words)."""
+
+    def __init__(self, *steps: tuple[float, str]) -> None:
+        self.steps = steps
+
+    async def __call__(self, pcm: bytes, sample_rate: int) -> str:
+        await asyncio.sleep(0.05)
+        seconds = len(pcm) / 2 / sample_rate
+        return [text for after, text in self.steps if seconds >= after][-1]
+
+
+def test_speech_judged_false_while_the_user_still_talks_is_judged_again_on_what_follows() -> None:
+    """ "Yeah... no wait, go left": the first window holds only a backchannel, so the reply resumes;
+    the utterance went on, and its second half must interrupt, not be dropped as noise."""
+
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=8.0, chunk_s=0.5), spoken_reply("r2", seconds=0.2))
+        transcriber = SaidSoFar((0.0, "yeah"), (2.0, "yeah no wait go left"))
+        async with running_agent(DUPLEX, factory, transcriber=transcriber) as agent:
+            stream = await reply_playing(agent, 500)
+            agent.port.push(VoiceActivity(True))
+            agent.port.push(PlaybackStatus(stream, 550, queued_ms=7000, paused=True))
+            talking = asyncio.create_task(speak(agent.port, 2, seconds=2.7))  # "yeah ... no wait, go left"
+            await asyncio.sleep(1.75)  # the first window: "yeah" only
+            assert agent.port.of("resume") == [(stream, "false_barge_in")]
+            agent.port.push(playing(stream, 2300))  # it plays on while the user goes on talking
+            await talking
+            await asyncio.sleep(1.0)
+            await agent.stop()
+        provider = factory.last
+        assert agent.port.of("interruption") == [(stream, "barge_in")]
+        interrupt = provider.names().index("interrupt")
+        assert provider.calls[interrupt][1][2] >= 2300  # cut where it played, not where it paused
+        assert provider.names().count("end_of_turn") == 2  # the utterance is the user's next turn
+        assert len(provider.audio) >= 2 * int(2.7 * 24000)  # all of it, "yeah" included
+
+    run_virtual(scenario())
+
+
 def test_the_vads_pre_roll_is_not_speech() -> None:
     """Issue 34: a cough arrives with half a second of pre-roll; counting all of it confirmed every
     cough on the real graph."""
