@@ -113,3 +113,11 @@ def test_a_partial_result_before_the_first_word_is_empty() -> None:
     recognizer.start()
     recognizer.feed(np.zeros(RATE // 10, dtype=np.int16))
     assert recognizer.partial().words == ()
+
+
+@pytest.mark.unit
+def test_a_stop_phrase_must_be_whole() -> None:
+    matcher = StopMatcher(["stop", "halt", "stop it"], max_other_words=1)
+    assert not matcher.is_stop("it him") and not matcher.is_stop("it")  # "it" is not "stop it"
+    assert matcher.phrases_in("stop it") == ("stop it",) and matcher.is_stop("stop it now")
+    assert matcher.is_stop("okay stop") and matcher.is_stop("stop eat")  # one slip still stops
