@@ -62,6 +62,7 @@ PLAYBACK = "by_your_command_msgs/msg/PlaybackStatus"
 VERDICT = "by_your_command_msgs/msg/CommandVerdict"
 COMMAND_REQUEST = "by_your_command_msgs/msg/CommandRequest"
 STRING = "std_msgs/msg/String"
+SAFETY_STOP = "by_your_command_msgs/msg/SafetyStop"
 BOOL = "std_msgs/msg/Bool"
 IMAGE = "sensor_msgs/msg/CompressedImage"
 DETECTION_2D_ARRAY = "vision_msgs/msg/Detection2DArray"
@@ -103,6 +104,13 @@ def _field(msg: dict[str, Any], name: str, kind: type, default: Any = None) -> A
     if kind is int and isinstance(value, bool) or not isinstance(value, kind):
         raise BadMessage(f"{name}: expected {kind.__name__}")
     return value
+
+
+def _safety_stop(msg: dict[str, Any]) -> SafetyStop:
+    utterance_id = _field(msg, "utterance_id", int, 0)
+    if not 0 <= utterance_id < 2**64:
+        raise BadMessage("utterance_id: outside uint64")
+    return SafetyStop(_field(msg, "phrase", str)[:200], utterance_id)
 
 
 def _pcm(values: Any) -> bytes:
@@ -210,7 +218,7 @@ class BridgePort:
         self._add(topics.camera, IMAGE, _image)
         self._add(topics.command_status, VERDICT, _verdict)
         self._add(topics.conversation_reset, STRING, lambda msg: ConversationReset(_field(msg, "data", str)))
-        self._add(topics.safety_stop, STRING, lambda msg: SafetyStop(_field(msg, "data", str)[:200]))
+        self._add(topics.safety_stop, SAFETY_STOP, _safety_stop)
         if config.role is AgentRole.TOOLS:
             self._add(topics.robot_tools, STRING, lambda msg: ToolCatalog(_field(msg, "data", str)))
         self._tool_topics: set[str] = set()  # advertised for robot tools of kind topic

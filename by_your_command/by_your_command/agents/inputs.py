@@ -103,9 +103,11 @@ class ConversationReset:
 @dataclass(frozen=True)
 class SafetyStop:
     """The robot heard a stop phrase itself (`safety_stop`): the stop command is already routed and
-    every reply cut; the agent drops what it was saying and tells the model."""
+    every reply cut; the agent drops what it was saying and tells the model. `utterance_id` names
+    the utterance that held the stop word (0: none): it is not a request to the model."""
 
     phrase: str
+    utterance_id: int = 0
 
 
 @dataclass(frozen=True)

@@ -1014,6 +1014,7 @@ class AgentRuntime:
         heard, and the conversation says that the user stopped the robot."""
         self.counters.safety_stops += 1
         await self._cancel_robot_calls(f"the robot heard {stop.phrase[:40]!r}")
+        self._drop_stop_utterance(stop.utterance_id)
         now = self._clock.now()
         reply, barge = self._reply, self._barge
         if barge is not None:  # the stop settles it: the reply is cut, the speech is the user's
@@ -1038,6 +1039,29 @@ class AgentRuntime:
         if cut and reply is not None and reply.generation_done and answered is not None:
             if answered.number == reply.turn:
                 await self._finish_turn(answered, "interrupted")
+
+    def _drop_stop_utterance(self, utterance_id: int) -> None:
+        """The utterance that carried the stop word is not a request to the model: the stop is
+        handled (the model would route it again, and answer). Its chunks still to come are dropped;
+        audio of it already streamed to the provider would join the next turn there, so that
+        session closes at the next boundary (the next one has the stop as a note in its history)."""
+        if not utterance_id:
+            return
+        turn = self._turn_in
+        if turn is not None and turn.utterance_id == utterance_id:
+            self._turn_in = None
+            if not turn.held and not turn.deferred and turn.audio and self._session is not None:
+                self._close_at_boundary()
+                self._recycle = self._recycle or "a stop's audio is in the provider's input"
+        else:
+            waiting = [t for t in self._waiting if t.utterance_id == utterance_id]
+            for queued in waiting:
+                self._waiting.remove(queued)
+        if utterance_id not in self._closed_utterances:
+            self._closed_utterances.append(utterance_id)
+        log.info(
+            "agent %s: utterance %d was the stop: not sent as a request", self.config.agent_id, utterance_id
+        )
 
     def _on_playback(self, status: PlaybackStatus) -> None:
         reply = self._reply

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+from by_your_command_msgs.msg import SafetyStop
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.event_handler import QoSSubscriptionMatchedInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
@@ -363,7 +364,7 @@ class RosAiBridge(Node):
         # Latched: an agent that connects any time later still learns what the robot can do.
         self._tools_pub = self.create_publisher(String, TOOLS_TOPIC, _qos.LATCHED)
         self._tools_pub.publish(String(data=catalog.to_json()))
-        self.create_subscription(String, SAFETY_STOP_TOPIC, self._on_safety_stop, _qos.RELIABLE)
+        self.create_subscription(SafetyStop, SAFETY_STOP_TOPIC, self._on_safety_stop, _qos.RELIABLE)
         site: StaticSite | None = monitor_site(monitor) if self.monitor_params.monitor_page else None
         self.server = BridgeServer(self.core, token, site)
         self._setup_summary(monitor, namespace)
@@ -394,9 +395,9 @@ class RosAiBridge(Node):
         except ValueError as error:  # ToolsConfigError names the tool and the key
             raise ConfigError(f"robot tools {path}: {error}") from None
 
-    def _on_safety_stop(self, msg: String) -> None:
+    def _on_safety_stop(self, msg: SafetyStop) -> None:
         try:
-            self._loop.call_soon_threadsafe(self._safety_stop, msg.data)
+            self._loop.call_soon_threadsafe(self._safety_stop, msg.phrase)
         except RuntimeError:
             pass  # the loop is closed: the node is shutting down
 

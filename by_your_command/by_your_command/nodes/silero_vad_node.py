@@ -25,7 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption
+from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption, SafetyStop
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
@@ -55,6 +55,7 @@ STATS_PERIOD_S = 10.0
 # Audio timeout and delivery checks: each executor wake-up costs ~0.5 ms, so not more often.
 HOUSEKEEPING_PERIOD_S = 0.5
 STOP_VOICE_CHUNK_S = 0.25  # "Stopping." goes out in chunks this long (the player's usual diet)
+SPANS_KEPT = 16  # recent utterances a safety stop may name
 
 
 def _to_time(ns: int) -> Time:
@@ -144,6 +145,8 @@ class SileroVadNode(Node):
         self.safety_stops = 0
         self.safety_rejected_blocks = 0
         self._stops_heard: deque[Detection | Exception] = deque()
+        self._spans: deque[tuple[int, int | None]] = deque(maxlen=SPANS_KEPT)  # (utterance id, end ns)
+        self._span_samples = 0
         if not config.enabled:
             self.get_logger().warning("safety stop OFF (stop_spotter: false): a spoken 'stop' is not heard")
             return None
@@ -152,7 +155,7 @@ class SileroVadNode(Node):
         self._stop_voice = self._synthesize_stop_voice(config.reply_text)
         self.cmd_pub = self.create_publisher(String, "response_cmd", RELIABLE)
         self.interruption_pub = self.create_publisher(Interruption, "interruption_signal", RELIABLE)
-        self.safety_pub = self.create_publisher(String, "safety_stop", RELIABLE)
+        self.safety_pub = self.create_publisher(SafetyStop, "safety_stop", RELIABLE)
         self.stop_voice_pub = self.create_publisher(AudioChunk, "response_voice", RELIABLE)
         # The robot's voice as played: the spotter rejects a stop the robot said itself.
         self.create_subscription(AudioChunk, "audio_played", self._on_played, AUDIO_IN)
@@ -199,12 +202,28 @@ class SileroVadNode(Node):
         # Each on its own: one publish failing (RCLError under overload) must not keep the others.
         self._publish_safely(lambda: self.cmd_pub.publish(String(data="stop")))  # first: the motion
         self._publish_safely(lambda: self.interruption_pub.publish(cut))
-        self._publish_safely(lambda: self.safety_pub.publish(String(data=detection.text)))
+        self._publish_safely(lambda: self.safety_pub.publish(self._safety_stop_msg(detection)))
         self._publish_safely(lambda: self._say_stopping(now + 1_000_000))  # after the cut: kept
         self.get_logger().warning(
             f"SAFETY STOP #{self.safety_stops}: heard {detection.text!r}, "
             f"{(now - detection.voice_end_ns) / 1e6:.0f} ms after the word ended; `stop` routed, replies cut"
         )
+
+    def _safety_stop_msg(self, detection: Detection) -> SafetyStop:
+        """The stop, naming the published utterance that holds its word (utterance ids are the mic
+        time of their first sample, the spotter's clock): the agents must not take it as a request."""
+        msg = SafetyStop(phrase=detection.text[:200], utterance_id=self._utterance_of(detection))
+        msg.word_start = _to_time(detection.voice_start_ns)
+        msg.word_end = _to_time(detection.voice_end_ns)
+        return msg
+
+    def _utterance_of(self, detection: Detection) -> int:
+        for utterance_id, end_ns in reversed(self._spans):  # the newest first
+            if utterance_id <= detection.voice_end_ns and (
+                end_ns is None or end_ns >= detection.voice_start_ns
+            ):
+                return utterance_id
+        return 0
 
     def _publish_safely(self, publish: Callable[[], None]) -> None:
         try:
@@ -404,11 +423,22 @@ class SileroVadNode(Node):
                             "nothing subscribes to prompt_voice (no bridge or agent listening)",
                         )
                     self.voice_pub.publish(self._utterance_msg(event))
+                    self._track_span(event)
                     confirm = event.is_utterance_end and not unheard
                     self.delivery.published(event.utterance_id if confirm else None)
             except Exception as error:  # rclpy raises RCLError under overload: count, never crash
                 self.publish_failures += 1
                 self.get_logger().error(f"publish failed ({self.publish_failures} so far): {error}")
+
+    def _track_span(self, chunk: UtteranceChunk) -> None:
+        """The published utterances' spans on the mic clock (id = first sample): the safety stop
+        names the one that holds its word. Open ones end at None."""
+        if chunk.chunk_sequence == 0 or not self._spans or self._spans[-1][0] != chunk.utterance_id:
+            self._spans.append((chunk.utterance_id, None))
+            self._span_samples = 0
+        self._span_samples += len(chunk.samples)
+        end = chunk.utterance_id + self._span_samples * NS_PER_S // chunk.sample_rate
+        self._spans[-1] = (chunk.utterance_id, end if chunk.is_utterance_end else None)
 
     def _unheard(self, utterance_id: int, why: str, certain: bool = True) -> None:
         # DDS drops what nobody (alive) receives without a word: say it here, where it is known.

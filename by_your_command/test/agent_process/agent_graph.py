@@ -26,6 +26,7 @@ from by_your_command_msgs.msg import (
     CommandVerdict,
     Interruption,
     PlaybackStatus,
+    SafetyStop,
 )
 from byc_testing import REPO_ROOT, python_module, running_process, wait_for
 from diagnostic_msgs.msg import DiagnosticArray
@@ -400,7 +401,7 @@ class GraphProbe:
         self.voice = node.create_publisher(AudioDataUtterance, "prompt_voice", RELIABLE)
         self.text = node.create_publisher(String, "prompt_text", RELIABLE)
         self.activity = node.create_publisher(Bool, "voice_activity", RELIABLE)
-        self.safety_stop = node.create_publisher(String, "safety_stop", RELIABLE)  # as the VAD's spotter
+        self.safety_stop = node.create_publisher(SafetyStop, "safety_stop", RELIABLE)  # as the VAD's spotter
         self.transcripts: list[String] = self._listen(String, "prompt_transcript")
         self.replies: list[String] = self._listen(String, "response_text")
         self.commands: list[String] = self._listen(String, "response_cmd")

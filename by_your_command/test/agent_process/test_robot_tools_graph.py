@@ -27,7 +27,7 @@ from agent_graph import (
     setup_requests,
     until,
 )
-from std_msgs.msg import String
+from by_your_command_msgs.msg import SafetyStop
 
 from by_your_command.emulators import gemini_script, openai_script
 from by_your_command.emulators.gemini_wire import field_value
@@ -318,7 +318,7 @@ def test_openai_the_safety_stop_reaches_the_agent_through_the_bridge_and_ends_th
     ):
         probe.type_text("go to the kitchen")
         wait_driving(probe, check)
-        probe.safety_stop.publish(String(data="stop"))
+        probe.safety_stop.publish(SafetyStop(phrase="stop"))
         until(lambda: function_outputs(openai), "the goal's end", check, WAIT_S)
         [result] = function_outputs(openai)
         assert result["ok"] is False and result["status"] == "cancelled"

@@ -312,6 +312,35 @@ def test_a_safety_stop_cuts_the_reply_and_the_model_learns_it() -> None:
     run_virtual(scenario())
 
 
+@pytest.mark.parametrize("stop_first", [False, True], ids=["during-the-utterance", "before-its-chunks"])
+def test_the_utterance_that_carried_a_safety_stop_is_not_a_request(stop_first: bool) -> None:
+    """The robot silent, the user says "stop": the VAD's spotter routed it, and the same utterance
+    on prompt_voice would make the model route it again and answer. The stop names it: dropped."""
+
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=0.5), spoken_reply("r2", seconds=0.5))
+        async with running_agent(AgentConfig(), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)  # a first exchange: the session is open
+            await asyncio.sleep(1.0)
+            if stop_first:  # two topics, no order: the stop may come before the utterance
+                agent.port.push(SafetyStop("stop", utterance_id=2))
+                await speak(agent.port, 2, seconds=0.4)
+            else:
+                talking = asyncio.create_task(speak(agent.port, 2, seconds=0.4))
+                await asyncio.sleep(0.25)
+                agent.port.push(SafetyStop("stop", utterance_id=2))
+                await talking
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        names = [name for provider in factory.created for name in provider.names()]
+        assert names.count("end_of_turn") == 1  # only the first exchange was a request
+        assert [t.turn for t in agent.port.turns()] == [1]
+        if not stop_first:  # its first audio was streamed: that session is not used again
+            assert factory.created[0].closed
+
+    run_virtual(scenario())
+
+
 @pytest.mark.parametrize(
     "config",
     [AgentConfig(echo_mode=EchoMode.GATE), AgentConfig(echo_mode=EchoMode.AEC, role=AgentRole.COMMAND)],

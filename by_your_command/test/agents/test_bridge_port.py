@@ -19,6 +19,7 @@ from by_your_command.agents.inputs import (
     CameraFrame,
     InputLost,
     PlaybackStatus,
+    SafetyStop,
     SharedTurn,
     UtteranceChunk,
 )
@@ -82,6 +83,8 @@ def test_inputs_convert_and_invalid_ones_are_reported_as_lost() -> None:
     )
     jpeg = base64.b64encode(b"\xff\xd8").decode()
     assert convert({"format": "jpeg", "data": jpeg}, "camera_forwarded") == CameraFrame(b"\xff\xd8")
+    stop = {"phrase": "halt" * 100, "utterance_id": 2**63, "word_start": {"sec": 1, "nanosec": 0}}
+    assert convert(stop, "safety_stop") == SafetyStop("halt" * 50, 2**63)  # bounded phrase
     for msg, topic in [
         ({"int16_data": [40000]}, "prompt_voice"),
         ({"int16_data": "AAA="}, "prompt_voice"),
@@ -91,6 +94,10 @@ def test_inputs_convert_and_invalid_ones_are_reported_as_lost() -> None:
         ({"stream_id": "s", "played_ms": True}, "playback_status"),
         ({"format": "png", "data": jpeg}, "camera_forwarded"),
         ({"data": "x"}, "some_other_topic"),
+        ({"data": "stop"}, "safety_stop"),  # the old String shape: no phrase
+        ({"phrase": "stop", "utterance_id": -1}, "safety_stop"),
+        ({"phrase": "stop", "utterance_id": 2**64}, "safety_stop"),
+        ({"phrase": "stop", "utterance_id": "7"}, "safety_stop"),
     ]:
         lost = convert(msg, topic)
         assert isinstance(lost, InputLost) and lost.reason.startswith("invalid message"), (msg, lost)

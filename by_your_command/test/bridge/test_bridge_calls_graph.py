@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from by_your_command_msgs.msg import SafetyStop
 from byc_testing import INSTALL_LIB, running_process, wait_for
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -321,7 +322,7 @@ def test_missing_servers_and_a_service_timeout(
 
 
 def test_safety_stop_cancels_every_goal(ros_namespace: str, tools_file: Path, graph_node: Node) -> None:
-    stop = graph_node.create_publisher(String, "safety_stop", _qos.RELIABLE)
+    stop = graph_node.create_publisher(SafetyStop, "safety_stop", _qos.RELIABLE)
     with (
         demo_robot(ros_namespace, "speed_mps:=0.05", "feedback_rate_hz:=20.0"),
         bridge(ros_namespace, tools_file) as (port, lines),
@@ -330,7 +331,7 @@ def test_safety_stop_cancels_every_goal(ros_namespace: str, tools_file: Path, gr
         wait_for(lambda: stop.get_subscription_count() >= 1, timeout=20, what="bridge subscribes safety_stop")
         reader.send(goal(ros_namespace, "walk", 10.0))
         wait_for(lambda: frames_of(reader, "action_feedback", "walk"), timeout=20, what="the goal runs")
-        stop.publish(String(data="stop"))
+        stop.publish(SafetyStop(phrase="stop"))
         result = answer(reader, "action_result", "walk")
         assert result["status"] == CANCELED, result
         wait_for(lambda: lines.find(r"safety stop \('stop'\): cancelled 1 goal"), timeout=10, what="log line")

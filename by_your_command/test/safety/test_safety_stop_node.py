@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
-from by_your_command_msgs.msg import AudioChunk, Interruption
+from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption, SafetyStop
 from byc_testing import running_process
 from ros_probe import Probe, probe_node
 from safety.test_spotter import said
@@ -66,7 +66,8 @@ def test_a_spoken_stop_is_obeyed_while_the_robot_speaks_asleep_and_muted_but_not
         states = probe.listen(String, "attention_state", LATCHED)
         cuts = probe.listen(Interruption, "interruption_signal", RELIABLE)
         commands = probe.listen(String, "response_cmd", RELIABLE)
-        stops = probe.listen(String, "safety_stop", RELIABLE)
+        stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
+        utterances = probe.listen(AudioDataUtterance, "prompt_voice", RELIABLE)
         voice = probe.listen(AudioChunk, "response_voice", RELIABLE)
         speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
         wake = probe.node.create_publisher(Bool, "wake_cmd", RELIABLE)
@@ -92,7 +93,7 @@ def test_a_spoken_stop_is_obeyed_while_the_robot_speaks_asleep_and_muted_but_not
         assert [c.data for c in commands] == ["stop"]
         assert len(cuts) == 1 and cuts[0].reason == "safety_stop" and cuts[0].stream_id == ""
         assert cuts[0].action == Interruption.CUT
-        assert stops[0].data == "halt"
+        assert stops[0].phrase == "halt" and stops[0].utterance_id == 0  # the gate: no utterance of it
         stamp = lambda m: m.header.stamp.sec * NS + m.header.stamp.nanosec  # noqa: E731
         assert {c.stream_id for c in voice} == {"safety-stop-1"}
         assert all(stamp(c) > stamp(cuts[0]) for c in voice)  # the player keeps it after the cut
@@ -110,6 +111,18 @@ def test_a_spoken_stop_is_obeyed_while_the_robot_speaks_asleep_and_muted_but_not
         wait(lambda: len(stops) == 3, "a stop while muted")
         assert [c.data for c in commands] == ["stop"] * 3
         assert len({c.stream_id for c in voice}) == 3
+        assert [s.utterance_id for s in stops] == [0, 0, 0]  # asleep and muted: nothing went to agents
+
+        # Awake, the robot silent: the stop is also an utterance on prompt_voice, and the stop names
+        # it, so an agent does not take it as a request (it would route stop again, and answer).
+        voice_active.publish(Bool(data=True))
+        wait(lambda: states[-1].data == "awake", "unmute")
+        room.play(user=said("stop"))
+        wait(lambda: len(stops) == 4 and any(u.is_utterance_end for u in utterances), "a stop while awake")
+        assert stops[3].utterance_id != 0
+        assert stops[3].utterance_id in {u.utterance_id for u in utterances}
+        word_end = stops[3].word_end.sec * NS + stops[3].word_end.nanosec
+        assert stops[3].utterance_id < word_end  # the utterance began before the word ended
 
 
 @pytest.mark.ros
