@@ -32,7 +32,8 @@ from fake_port import FakePort, running_agent, speak  # type: ignore[import-not-
 from fake_provider import FakeFactory, spoken_reply  # type: ignore[import-not-found]  # noqa: E402
 from virtual_time import run_virtual  # type: ignore[import-not-found]  # noqa: E402
 
-from by_your_command.agents.config import AgentConfig  # noqa: E402
+from by_your_command.agents.app_config import load_app_config  # noqa: E402
+from by_your_command.agents.config import AgentConfig, EchoMode  # noqa: E402
 from by_your_command.agents.inputs import PlaybackStatus, VoiceActivity  # noqa: E402
 from by_your_command.agents.port import VoiceChunk  # noqa: E402
 
@@ -44,6 +45,9 @@ STATUS_PERIOD_S = 0.1
 FOLLOW_UP_GAP_S = 1.5
 PAUSES_S = (10.0, 1.0, 2.0, 5.0, 30.0)  # the default (AgentConfig.pause_timeout_s) first
 NEVER_S = 2 * HOUR_S  # baseline: no cycling within the hour
+# GPT-Live bills every second of open session (issue 36): <= 1.2 x conversation + 3 s per conversation.
+GPT_LIVE_GOAL_RATIO = 1.2
+GPT_LIVE_GOAL_S_PER_CONVERSATION = 3.0
 
 
 @dataclass(frozen=True)
@@ -106,7 +110,7 @@ async def play(port: Any, published_before: int, now: Any) -> float:
         await asyncio.sleep(STATUS_PERIOD_S)
 
 
-async def hour(pause_s: float) -> Result:
+async def hour(pause_s: float, duplex: bool = False) -> Result:
     plan = exchanges()
     scripts = [
         spoken_reply(f"r{e}-{t}", seconds=turn.reply_s, first_after_s=MODEL_DELAY_S, pace_s=0.05)
@@ -116,9 +120,12 @@ async def hour(pause_s: float) -> Result:
 
     def slow_connect(provider: Any, index: int) -> None:
         provider.connect_delay_s = CONNECT_S
+        provider.duplex = duplex  # GPT-Live: the runtime's full-duplex path
 
     factory = FakeFactory(*scripts, configure=slow_connect)
     config = replace(AgentConfig(), pause_timeout_s=pause_s, conversation_timeout_s=2 * HOUR_S)
+    if duplex:
+        config = replace(config, echo_mode=EchoMode.AEC)
     loop = asyncio.get_running_loop()
     conversation_s = 0.0
     async with running_agent(config, factory) as agent:
@@ -149,6 +156,28 @@ def main() -> int:
     turns = sum(len(e.turns) for e in exchanges())
     baseline = run_virtual(hour(NEVER_S), deadline_s=2 * HOUR_S)
     results = [run_virtual(hour(pause), deadline_s=2 * HOUR_S) for pause in PAUSES_S]
+    live_pause = load_app_config("agent_gpt_live.yaml").agent.pause_timeout_s
+    live = run_virtual(hour(live_pause, duplex=True), deadline_s=2 * HOUR_S)
+    live_goal = GPT_LIVE_GOAL_RATIO * live.conversation_s + GPT_LIVE_GOAL_S_PER_CONVERSATION * EXCHANGES
+    print(
+        json.dumps(
+            {
+                "bench": "agent_billing",
+                "figure": "gpt_live_billed_session_s_per_hour",
+                "pause_timeout_s": live_pause,
+                "sessions": live.sessions,
+                "turns_completed": live.turns_completed,
+                "billed_s": round(live.billed_s, 1),
+                "conversation_s": round(live.conversation_s, 1),
+                "billed_ratio_vs_conversation": round(live.billed_s / live.conversation_s, 3),
+                "goal_s": round(live_goal, 1),
+                "meets_goal": live.billed_s <= live_goal,
+                "cost_usd_at_3_per_hour": round(live.billed_s / 3600 * 3.0, 3),
+                "baseline_billed_s": round(baseline.billed_s, 1),
+                "baseline_cost_usd": round(baseline.billed_s / 3600 * 3.0, 3),
+            }
+        )
+    )
     rows = []
     for result in (*results, baseline):
         goal_s = 1.1 * result.conversation_s + 2.0 * EXCHANGES
@@ -190,7 +219,14 @@ def main() -> int:
             f"{result.billed_s / result.conversation_s:6.2f} {overhead:7.2f}  {result.sessions}"
             f"{'' if result.billed_s <= goal_s else '  (over the goal)'}"
         )
-    return 0 if all(r.turns_completed == turns for r in (*results, baseline)) else 1
+    label = f"gpt_live, pause {live_pause:g} s"
+    overhead = (live.billed_s - live.conversation_s) / EXCHANGES
+    print(
+        f"{label:30s} {live.billed_s:9.1f} {live.conversation_s:7.1f} {live_goal:7.1f} "
+        f"{live.billed_s / live.conversation_s:6.2f} {overhead:7.2f}  {live.sessions}"
+        f"{'' if live.billed_s <= live_goal else '  (over the goal)'}  (goal 1.2 x talk + 3 s each)"
+    )
+    return 0 if all(r.turns_completed == turns for r in (*results, baseline, live)) else 1
 
 
 if __name__ == "__main__":

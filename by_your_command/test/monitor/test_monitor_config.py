@@ -8,6 +8,7 @@ import pytest
 from live_bridge import CONFIG_DIR
 
 from by_your_command.agents.providers.gemini_live import GeminiLiveProvider
+from by_your_command.agents.providers.gpt_live import GptLiveProvider
 from by_your_command.agents.providers.offline import OfflineProvider
 from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeProvider
 from by_your_command.monitor.config import MonitorConfigError, load_monitor_config, parse_monitor_config
@@ -17,9 +18,10 @@ pytestmark = pytest.mark.unit
 
 def test_the_shipped_file_prices_every_provider_by_its_name() -> None:
     config = load_monitor_config(CONFIG_DIR / "monitor.yaml")
-    names = {OpenAIRealtimeProvider.name, GeminiLiveProvider.name, OfflineProvider.name}
+    names = {OpenAIRealtimeProvider.name, GeminiLiveProvider.name, GptLiveProvider.name, OfflineProvider.name}
     assert set(config.prices) == names
     assert config.prices["openai_realtime"].output_audio > 0 and config.prices["offline"].output_audio == 0
+    assert config.prices["gpt_live"].session_minute > 0  # billed per second of open session
     assert config.for_page()["page"]["camera_interval_ms"] == config.page.camera_interval_ms
 
 
