@@ -6,6 +6,7 @@
         await connection.session.start(session={"model": "gpt-live-1"})
         ...
     handle.received  # every client event, parsed, with the connection's index
+    handle.interruptions, handle.delegations  # replies the user cut off, delegations sent
     await handle.stop()
 
 The handshake behaves like the SDK expects: the path ends in `/live/sessions` (the model goes in
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 from http import HTTPStatus
 from urllib.parse import urlsplit
 
+from openai.types.live import DelegationCreatedEvent
 from pydantic import BaseModel
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.datastructures import Headers
@@ -62,6 +64,12 @@ class Interruption:
     said: str  # the reply's words sent before the user talked over it
 
 
+@dataclass(frozen=True)
+class DelegationSent:
+    connection: int
+    delegation_id: str  # the id a client's commentary / thinking for it must name
+
+
 class GptLiveEmulator(LoopbackUrls):
     """Handle of a running emulator (from `start`)."""
 
@@ -70,6 +78,7 @@ class GptLiveEmulator(LoopbackUrls):
         self.cursor = ScriptCursor(script)
         self.handshakes: list[Handshake] = []
         self.interruptions: list[Interruption] = []
+        self.delegations: list[DelegationSent] = []  # every session.delegation.created, in order
         self.refused_handshakes = 0  # upgrades answered with an HTTP error (a client retrying shows here)
         self._record = EventRecord(limits.max_recorded_bytes)
         self._server: Server | None = None
@@ -154,6 +163,8 @@ class GptLiveEmulator(LoopbackUrls):
         self._connections.add(connection)
 
         async def send(event: BaseModel) -> None:
+            if isinstance(event, DelegationCreatedEvent):
+                self.delegations.append(DelegationSent(index, event.delegation.id))
             try:
                 await connection.send(serialise(event))
             except ConnectionClosed:

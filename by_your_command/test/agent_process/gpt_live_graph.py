@@ -1,12 +1,15 @@
 """Helpers for the GPT-Live graph tests: the GPT-Live emulator (`byc emulate gpt-live`'s server) on
 its own event-loop thread, and a graph of real nodes (player with a WAV sink, command processor,
-ros_ai_bridge) with `byc agent --config agent_gpt_live.yaml` pointed at it."""
+demo_robot, ros_ai_bridge with the robot's tools) with `byc agent --config agent_gpt_live.yaml`
+pointed at it."""
 
 from __future__ import annotations
 
 import base64
+import re
 import signal
 import subprocess
+import time
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
@@ -27,7 +30,10 @@ from agent_graph import (
     player_process,
     processor_process,
     setup_requests,
+    until,
 )
+from byc_testing import python_module, running_process, wait_for
+from std_msgs.msg import Bool
 
 from by_your_command.audio.pcm import StreamResampler
 from by_your_command.emulators import gpt_live
@@ -63,6 +69,18 @@ class GptLiveEmulatorThread(ThreadedEmulator[gpt_live.GptLiveEmulator]):
     def connections(self) -> int:
         return self._read(lambda: len(self.handle.handshakes))
 
+    def interruptions(self) -> list[gpt_live.Interruption]:
+        """Replies the emulator stopped because the user spoke over them (the model yielding)."""
+        return self._read(lambda: list(self.handle.interruptions))
+
+    def delegation_ids(self) -> list[str]:
+        """Every `session.delegation.created` the emulator sent, in order."""
+        return self._read(lambda: [d.delegation_id for d in self.handle.delegations])
+
+    def commentaries(self) -> list[dict[str, Any]]:
+        """Every `session.commentary.append` the client sent (a delegation's result)."""
+        return [e for e in self.received() if e["type"] == "session.commentary.append"]
+
     def open_connections(self) -> int:
         return self._read(lambda: self.handle.open_connections)
 
@@ -92,6 +110,41 @@ def gpt_live_agent_config(
     return path, data
 
 
+def say_live(probe: GraphProbe, pcm: np.ndarray, chunk_ms: int = 100) -> None:
+    """One utterance as the VAD publishes it live: voice_activity on, its chunks at real time (the
+    model hears speech over its reply arrive as it is said, and yields part-way through it, as it
+    would), voice_activity off."""
+    probe.activity.publish(Bool(data=True))
+    start = time.monotonic()
+    for index, message in enumerate(probe.utterance(pcm, chunk_ms)):
+        # Pacing a live source, not waiting for a condition: chunk k is published when said.
+        time.sleep(max(0.0, start + index * chunk_ms / 1000 - time.monotonic()))
+        probe.voice.publish(message)
+    probe.activity.publish(Bool(data=False))
+
+
+@contextmanager
+def demo_robot(namespace: str, *params: str) -> Iterator[tuple[subprocess.Popen[str], Output]]:
+    """demo_robot (navigate_to_pose, dock, battery_status) with its log kept: it says which pose
+    each goal asked for. `params` name:=value."""
+    args = [arg for param in params for arg in ("-p", param)]
+    command = python_module(
+        "by_your_command.nodes.demo_robot", "--ros-args", "-r", f"__ns:={namespace}", *args
+    )
+    with running_process(command) as process:
+        output = Output(process)
+        wait_for(
+            lambda: output.find("demo_robot ready") or process.poll() is not None,
+            timeout=60,
+            what="demo_robot startup",
+        )
+        assert output.find("demo_robot ready"), str(output)
+        try:
+            yield process, output
+        finally:
+            print("--- demo_robot:", *list(output.lines), sep="\n")
+
+
 @dataclass
 class LiveGraph:
     api: GptLiveEmulatorThread
@@ -100,6 +153,7 @@ class LiveGraph:
     agent_out: Output
     check: Any  # fails at once when a process of the graph died
     player: subprocess.Popen[str] | None
+    robot_out: Output | None = None  # demo_robot's log, when it runs
 
     def stop_agent(self) -> list[str]:
         """SIGTERM, as Ctrl-C or `ros2 launch` would: the agent closes its session and exits 0."""
@@ -121,6 +175,14 @@ class LiveGraph:
     def finished_streams(self) -> list[str]:
         return [s.stream_id for s in list(self.probe.playback) if s.finished]
 
+    def robot_goals(self) -> list[tuple[float, float, str]]:
+        """The goals demo_robot was given: (x, y, frame), from its log."""
+        assert self.robot_out is not None
+        found = (
+            re.search(r"driving to \((\S+), (\S+)\) in '(\w*)'", line) for line in list(self.robot_out.lines)
+        )
+        return [(float(m[1]), float(m[2]), m[3]) for m in found if m]
+
 
 @contextmanager
 def live_graph(
@@ -131,9 +193,13 @@ def live_graph(
     processor: bool = False,
     key: str = FAKE_KEY,
     options: tuple[str, ...] = (),
+    tools: Path | None = None,
+    robot: tuple[str, ...] | None = None,
     **settings: Any,
 ) -> Iterator[LiveGraph]:
-    """Emulator, probe, the nodes asked for, bridge, and `byc agent` on agent_gpt_live.yaml, ready."""
+    """Emulator, probe, the nodes asked for, bridge, and `byc agent` on agent_gpt_live.yaml, ready.
+    `tools`: the bridge's tools file (the agent holds those tools); `robot`: demo_robot runs, with
+    these name:=value parameters."""
     with ExitStack() as stack:
         api = stack.enter_context(GptLiveEmulatorThread(script))
         probe = stack.enter_context(graph_probe(namespace))
@@ -143,9 +209,19 @@ def live_graph(
             nodes.append(player)
         if processor:
             nodes.append(stack.enter_context(processor_process(namespace)))
+        robot_out = None
+        if robot is not None:
+            robot_process, robot_out = stack.enter_context(demo_robot(namespace, *robot))
+            nodes.append(robot_process)
         probe.wait_nodes(alive(*nodes), player is not None, processor)
-        port, _ = stack.enter_context(bridge_process(namespace))
+        bridge_params = () if tools is None else (f"tools_path:={tools}",)
+        port, _ = stack.enter_context(bridge_process(namespace, 0, *bridge_params))
         config, data = gpt_live_agent_config(tmp_path, api, **settings)
         agent, agent_out = stack.enter_context(agent_process(config, port, key, *options))
+        check = alive(agent, *nodes)
         probe.wait_agents_ready(namespace, [setup_requests(data)], 60.0)
-        yield LiveGraph(api, probe, agent, agent_out, alive(agent, *nodes), player)
+        if tools is not None:
+            until(
+                lambda: agent_out.find(r"the robot's tools: "), "the agent got the robot's tools", check, 60.0
+            )
+        yield LiveGraph(api, probe, agent, agent_out, check, player, robot_out)

@@ -208,9 +208,10 @@ class LiveTranslator:
         return out
 
     def _spoken_over(self, reply: _Reply) -> bool:
-        """The user began speaking while this reply was being said."""
+        """The user began speaking while this reply was open: its last delta's audio still sounds
+        after it arrives, and a model that yields at once sends nothing after the speech began."""
         spoke = self._speech_started_at
-        return spoke is not None and reply.started_at <= spoke <= reply.last_output_at
+        return spoke is not None and reply.started_at <= spoke
 
     def _quiet_gap(self, reply: _Reply) -> float:
         return self.yield_gap_s if self._spoken_over(reply) and not reply.cut else self.reply_end_gap_s

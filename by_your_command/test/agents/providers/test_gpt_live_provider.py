@@ -185,6 +185,21 @@ def test_a_reply_that_stops_after_the_user_began_speaking_yielded_to_the_user() 
     ]
 
 
+def test_a_model_that_yields_before_its_next_delta_is_still_seen_to_yield() -> None:
+    """The user began after the last delta arrived (its audio still sounding) and the model sent
+    nothing more: a yield, ended by the short gap, not a completed reply its answer would join."""
+    live = translator(yield_gap_s=0.1)
+    (sound,) = feed(live, (0.0, audio()), (1.0, audio()))[:1]
+    assert isinstance(sound, AssistantAudio)
+    live.user_speech(1.05, starts=True)
+    assert live.deadline() == pytest.approx(1.1)
+    interrupted, done = live.tick(1.1)
+    assert interrupted == Interrupted(sound.response_id)
+    assert isinstance(done, ResponseDone) and done.status is ResponseStatus.CANCELLED
+    (answer,) = feed(live, (1.5, audio()))
+    assert isinstance(answer, AssistantAudio) and answer.response_id != sound.response_id
+
+
 def test_a_reply_to_speech_that_ended_before_it_completes() -> None:
     live = translator()
     live.user_speech(0.0, starts=True)
