@@ -91,7 +91,9 @@ def test_offline_demo_routes_the_spoken_commands_and_ignores_the_one_said_asleep
             assert not _ACCEPTED.match(detail), f"routed while asleep: {detail}\n{run.explain()}"
     # The robot answered out loud: more speech than a few short acknowledgements.
     heard = [detail for kind, detail in run.events() if kind == "heard"]
-    assert len(heard) >= 5, run.explain()
+    # The last "stop" is the safety stop's: its utterance is not a request when the stop names it
+    # before the agent commits it (two topics, no order), so the agent hears 4 or 5.
+    assert len(heard) >= 4, run.explain()
     assert any(kind == "latency" for kind, _ in run.events()), run.explain()
     reply_wav = tmp_path / "robot_said.wav"
     assert audible_seconds(reply_wav) > 2.5, run.explain()
@@ -171,7 +173,8 @@ def test_the_cloud_demo_narrates_the_graph_with_an_emulated_provider(
     run = run_emulated_demo("openai", EMULATOR_SCRIPT, "openai", tmp_path, ros_namespace)
     assert run.status == 0, run.explain()
     assert "an OpenAI Realtime agent" in run.out  # no sound card here: the bundled file, a WAV
-    assert [kind for kind, _ in run.events()].count("latency") == 5, run.explain()
+    # 5 turns, or 4 when the safety stop named its utterance before the agent committed it
+    assert [kind for kind, _ in run.events()].count("latency") in (4, 5), run.explain()
     assert_the_demo_was_followed(run, tmp_path / "out")
 
 
