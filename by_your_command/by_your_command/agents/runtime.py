@@ -412,7 +412,11 @@ class AgentRuntime:
         return found
 
     def _idle(self, now: float) -> bool:
-        """Nothing pending: no turn, no tool call, no barge-in, no retry, nothing audible of ours."""
+        """Nothing pending, and nothing audible of ours."""
+        return self._nothing_pending() and not (self._reply is not None and self._reply.is_playing(now))
+
+    def _nothing_pending(self) -> bool:
+        """No turn, no tool call, no barge-in, no retry (a reply may still be playing)."""
         return (
             self._turn_in is None
             and self._turn_out is None
@@ -422,7 +426,6 @@ class AgentRuntime:
             # a running action keeps its session: only that session can take the call's result
             and not (self.robot_calls and self.config.keep_session_while_acting)
             and self._reconnect_at is None
-            and not (self._reply is not None and self._reply.is_playing(now))
         )
 
     # --- dispatch ----------------------------------------------------------------------------
@@ -832,17 +835,7 @@ class AgentRuntime:
         """A rotation that is due happens before a new turn at the latest. With turns back to back
         the session is never idle (the next question comes as the last reply ends), and it would
         reach the provider's limit in the middle of one."""
-        if (
-            self._session is not None
-            and self._rotation_due(self._clock.now())
-            and self._turn_in is None
-            and self._turn_out is None
-            and not self._waiting
-            and self._barge is None
-            and len(self._tools) == 0
-            and not (self.robot_calls and self.config.keep_session_while_acting)
-            and self._reconnect_at is None
-        ):
+        if self._session is not None and self._rotation_due(self._clock.now()) and self._nothing_pending():
             await self._close_session("rotation before the limit")
 
     def _barge_deadline(self, barge: PendingBargeIn) -> float:
