@@ -1008,6 +1008,10 @@ class AgentRuntime:
         self.counters.safety_stops += 1
         await self._cancel_robot_calls(f"the robot heard {stop.phrase[:40]!r}")
         self._drop_stop_utterance(stop.utterance_id)
+        answered = self._turn_out
+        was_the_request = (
+            bool(stop.utterance_id) and answered is not None and answered.utterance_id == stop.utterance_id
+        )
         now = self._clock.now()
         reply, barge = self._reply, self._barge
         if barge is not None:  # the stop settles it: the reply is cut, the speech is the user's
@@ -1026,12 +1030,23 @@ class AgentRuntime:
         if self.config.context_source is ContextSource.OWN and not self._session_is_old_conversation():
             note = SAFETY_STOP_NOTE.format(phrase=stop.phrase)
             self.context.add(Role.USER, note, now)  # for the next sessions
-            if self._session is not None:
+            if self._session is not None and not was_the_request:
                 self._session.send(AddContext(note))  # for this one, without asking for a reply
-        answered = self._turn_out
-        if cut and reply is not None and reply.generation_done and answered is not None:
+        if was_the_request and answered is not None:
+            await self._stop_was_the_request(answered)
+        elif cut and reply is not None and reply.generation_done and answered is not None:
             if answered.number == reply.turn:
                 await self._finish_turn(answered, "interrupted")
+
+    async def _stop_was_the_request(self, turn: Turn) -> None:
+        """The utterance the model is answering (or about to) was the stop: the VAD's end marker
+        usually reaches us before the spotter's verdict. Its reply is neither said nor acted on:
+        the session that took it as a request closes now (a reply to it, or a tool call routing
+        "stop" again, would come from there), and the next session has the stop as a note."""
+        self._turn_out = None
+        await self._close_session_now("the user's stop was its request")
+        log.info("agent %s: turn %d was the stop: its reply is dropped", self.config.agent_id, turn.number)
+        await self._finish_turn(turn, "stopped")
 
     def _drop_stop_utterance(self, utterance_id: int) -> None:
         """The utterance that carried the stop word is not a request to the model: the stop is
@@ -1800,17 +1815,19 @@ class AgentRuntime:
         return self._session is not None and self._session_conversation != self.context.serial
 
     async def _leave_old_conversation(self, reason: str) -> None:
-        """Close the old conversation's session now, even while its last reply still plays: what
-        the user says from here on goes to a new session (and only from its kept audio, which
-        the old session may have heard too), so the old server-side history never answers it."""
+        """Close the old conversation's session now, even while its last reply still plays, so the
+        old server-side history never answers what the user says from here on."""
+        await self._close_session_now(reason)
+
+    async def _close_session_now(self, reason: str) -> None:
+        """Close the session now: what the user says from here on goes to a new session (and only
+        from its kept audio, which the old session may have heard too)."""
         for turn in self._waiting:
             turn.deferred = True
         if self._turn_in is not None and not self._turn_in.held:
             self._turn_in.deferred = True
         for call in self._tools.expired(float("inf")):  # its calls were the old session's
-            log.info(
-                "agent %s: tool call %s dropped with its conversation", self.config.agent_id, call.call_id
-            )
+            log.info("agent %s: tool call %s dropped with its session", self.config.agent_id, call.call_id)
         await self._close_session(reason)
 
     async def _conversation_expired(self) -> None:

@@ -26,7 +26,7 @@ from agent_graph import (
     setup_requests,
     until,
 )
-from by_your_command_msgs.msg import Interruption
+from by_your_command_msgs.msg import Interruption, SafetyStop
 from std_msgs.msg import Bool
 
 from by_your_command.audio.pcm import read_wav
@@ -270,6 +270,55 @@ def test_barge_in_pauses_the_player_then_cuts_and_truncates_at_what_was_heard(
         lines = stop_agent(agent, agent_out)
         assert any("barge-in confirmed" in line for line in lines)
         no_secret_in(agent_out)
+
+
+def test_a_stop_the_model_was_already_answering_is_neither_said_nor_kept(
+    ros_namespace: str, tmp_path: Path
+) -> None:
+    """The VAD's end marker usually reaches the agent before its spotter's `safety_stop` (two
+    topics): the model is already answering "stop" when the stop names that utterance. What it
+    says to it is dropped, its session closed, and the next question goes to a new session whose
+    history holds the stop as a note."""
+    stopping, answer = "Okay, I am stopping now, as you asked me to.", "It is noon."
+    script = Script(
+        turns=(Turn(Say(stopping), heard="stop"),),
+        default_reply=Say(answer),
+        pace=1.0,  # the reply takes its spoken time: the stop comes while it is being made
+        ms_per_char=MS_PER_CHAR,
+    )
+    with ExitStack() as stack:
+        openai = stack.enter_context(emulator(script))
+        port, _ = stack.enter_context(bridge_process(ros_namespace))
+        probe = stack.enter_context(graph_probe(ros_namespace))
+        config, settings = agent_config(tmp_path, openai.url)
+        agent, _ = stack.enter_context(agent_process(config, port))
+        check = alive(agent)
+        probe.wait_agents_ready(ros_namespace, [setup_requests(settings)])
+
+        [*chunks, end] = probe.utterance(corpus_utterance(0))
+        for chunk in chunks + [end]:
+            probe.voice.publish(chunk)
+        until(lambda: "response.create" in openai.types(), "the stop's turn committed", check)
+        probe.safety_stop.publish(SafetyStop(phrase="stop", utterance_id=end.utterance_id))
+        outcome = until(
+            lambda: [r["outcome"] for r in probe.metric_records() if r["record"] == "turn"],
+            "the stop's turn record",
+            check,
+        )
+        assert outcome == ["stopped"]
+        until(lambda: openai.open_connections() == 0, "the stop's session closed", check)
+
+        probe.say(corpus_utterance(1))
+        until(lambda: probe.texts(probe.replies), "the next question's reply", check)
+        assert probe.texts(probe.replies) == [answer]  # nothing of what it began to say to "stop"
+        assert openai.connections() == 2
+        notes = [
+            part["text"]
+            for event in openai.events("conversation.item.create")
+            for part in event["item"].get("content", [])
+            if "text" in part
+        ]
+        assert any('"stop" (the robot heard this itself' in note for note in notes)
 
 
 def test_the_agent_reconnects_after_a_bridge_restart(ros_namespace: str, tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ import asyncio
 
 import pytest
 from fake_port import playing, running_agent, speak
-from fake_provider import FakeFactory, spoken_reply
+from fake_provider import FakeFactory, spoken_reply, tone
 from virtual_time import run_virtual
 
 from by_your_command.agents.config import AgentConfig, AgentRole, EchoMode
@@ -337,6 +337,49 @@ def test_the_utterance_that_carried_a_safety_stop_is_not_a_request(stop_first: b
         assert [t.turn for t in agent.port.turns()] == [1]
         if not stop_first:  # its first audio was streamed: that session is not used again
             assert factory.created[0].closed
+
+    run_virtual(scenario())
+
+
+@pytest.mark.parametrize("reply_began", [False, True], ids=["before-its-reply", "while-it-plays"])
+def test_a_stop_that_was_already_committed_gets_no_reply(reply_began: bool) -> None:
+    """The VAD's end marker usually comes before the spotter's verdict (two topics): the model was
+    already asked. What it answers to "stop" is neither said nor acted on; its session closes and
+    the next question goes to a new one that has the stop as a note."""
+
+    async def scenario() -> None:
+        factory = FakeFactory(
+            spoken_reply("r1", seconds=0.5),
+            spoken_reply("r2", seconds=2.0, text="okay, stopping", first_after_s=0.3, pace_s=0.2),
+            spoken_reply("r3", seconds=0.5, text="it is noon"),
+        )
+        async with running_agent(AgentConfig(), factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)  # a first exchange: the session is open
+            await asyncio.sleep(1.0)
+            await speak(agent.port, 2, seconds=0.4)  # "stop": committed at its end marker
+            await asyncio.sleep(0.5 if reply_began else 0.1)
+            agent.port.push(SafetyStop("stop", utterance_id=2))
+            await asyncio.sleep(3.0)
+            await speak(agent.port, 3, seconds=0.4)  # the next question
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        assert len(factory.created) == 2  # the stop's session closed; the next question opened another
+        assert agent.port.of("text") == ["hello there", "it is noon"]  # nothing of "okay, stopping"
+        streams = agent.port.streams()
+        if reply_began:  # what was already playing is cut at once, nothing more of it comes
+            assert len(streams) == 3
+            assert agent.port.of("interruption") == [(streams[1], "safety_stop")]
+            assert len(agent.port.stream_audio(streams[1])) < len(tone(2.0))
+        else:
+            assert len(streams) == 2
+        assert [(t.turn, t.outcome) for t in agent.port.turns()] == [
+            (1, "completed"),
+            (2, "stopped"),
+            (3, "completed"),
+        ]
+        history = [turn.text for turn in factory.created[1].setup.history]
+        assert any('"stop" (the robot heard this itself' in text for text in history)
+        assert factory.created[1].names().count("end_of_turn") == 1
 
     run_virtual(scenario())
 
