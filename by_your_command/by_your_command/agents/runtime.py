@@ -31,7 +31,7 @@ from by_your_command.agents.clock import Clock, LoopClock
 from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
 from by_your_command.agents.context import ContextStore
 from by_your_command.agents.delegation import match_tool
-from by_your_command.agents.detections import FrameInfo, extract
+from by_your_command.agents.detections import extract
 from by_your_command.agents.events import (
     AssistantAudio,
     AssistantText,
@@ -48,7 +48,7 @@ from by_your_command.agents.events import (
     UsageReport,
     UserTranscript,
 )
-from by_your_command.agents.frame_size import jpeg_size
+from by_your_command.agents.frames import FrameChoice
 from by_your_command.agents.inputs import (
     Attention,
     AttentionChanged,
@@ -237,12 +237,8 @@ class AgentRuntime:
         self._requests = 0  # command requests sent: their ids name this run and this count
         self._provider_backlog = 0  # session messages in the queue, not handled yet
         self._route_deferrals = 0
-        self._frame: tuple[CameraFrame, float] | None = None
-        self._frame_sent = True
-        self._asked_turn = 0  # the voice turn that got its frame (one per question)
+        self._frames = FrameChoice(config.max_frame_age_s)
         self._utterance_ended_at = float("-inf")  # frames kept from before this are stale
-        self._shown: CameraFrame | None = None  # the last frame sent to the model (detections' pixels)
-        self._shown_info: FrameInfo | None = None
         self._outbox = Outbox(config.agent_id, config.publish_timeout_s, self._count_publish_failure)
         self._streams = 0
         # Stream ids name this run too: a restarted agent's first reply must not continue (or be
@@ -553,8 +549,7 @@ class AgentRuntime:
             # older periodic one waits, since the one forwarded at the onset is usually a few ms
             # behind this chunk (_on_frame sends it); it goes at the end only if none came.
             since = max(turn.frame_since, turn.started_at - self.config.frame_lead_s)
-            if self._send_frame(self._session, since=since):
-                self._asked_turn = turn.number
+            self._show(self._session, self._frames.give_to(turn.number, self._clock.now(), since))
         if chunk.is_end:
             await self._end_utterance(turn)
         elif self._barge is not None and self._barge_turn is turn:
@@ -602,11 +597,10 @@ class AgentRuntime:
     def _utterance_complete(self, turn: Turn) -> None:
         """An ended utterance that is the user's turn: its frame if none went yet, then its commit."""
         session = self._session
-        if session is not None and self._asked_turn != turn.number and not turn.deferred:
+        if session is not None and self._frames.asked_turn != turn.number and not turn.deferred:
             # no frame came while the question was spoken: an older one (fresh enough) is better
             # than none for "what do you see?"
-            if self._send_frame(session, since=turn.frame_since):
-                self._asked_turn = turn.number
+            self._show(session, self._frames.give_to(turn.number, self._clock.now(), turn.frame_since))
         self._queue_commit(turn)
 
     async def _utterance_idle(self) -> None:
@@ -648,43 +642,23 @@ class AgentRuntime:
         if not frame.jpeg or len(frame.jpeg) > MAX_FRAME_BYTES:
             self.counters.inputs_invalid += 1
             return
-        self._frame = (frame, self._clock.now())  # kept for the next turn; never opens a session
-        self._frame_sent = False
+        now = self._clock.now()
+        self._frames.keep(frame, now)
         turn = self._turn_in
         if (
             turn is not None
             and not turn.held
             and self._session is not None
-            and self._asked_turn != turn.number
+            and self._frames.asked_turn != turn.number
         ):
             # The user is still asking: the first frame taken since the question started goes with
             # it (one per turn: later ones wait for the next turn, so a long question bills one).
-            self._asked_turn = turn.number
-            self._send_frame(self._session)
+            self._show(self._session, self._frames.give_to(turn.number, now))
 
-    def _send_frame(self, session: Session, since: float = float("-inf")) -> bool:
-        """Send the kept frame if it is unsent, arrived after `since` and is fresh; True if sent."""
-        if self._frame is None or self._frame_sent:
-            return False
-        frame, at = self._frame
-        if at <= since:
-            return False
-        self._frame_sent = True
-        if self._clock.now() - at > self.config.max_frame_age_s:
-            return False
-        session.send(SendImage(frame.jpeg))
-        self._shown, self._shown_info = frame, None
-        return True
-
-    def _shown_frame(self) -> FrameInfo | None:
-        """The last frame the model was shown, with its size read from the JPEG (0 x 0: unreadable)."""
-        shown = self._shown
-        if shown is None:
-            return None
-        if self._shown_info is None:
-            width, height = jpeg_size(shown.jpeg) or (0, 0)
-            self._shown_info = FrameInfo(width, height, shown.stamp, shown.frame_id)
-        return self._shown_info
+    @staticmethod
+    def _show(session: Session, frame: CameraFrame | None) -> None:
+        if frame is not None:
+            session.send(SendImage(frame.jpeg))
 
     # --- turns -------------------------------------------------------------------------------
 
@@ -712,7 +686,7 @@ class AgentRuntime:
             if turn.audio:
                 session.send(SendAudio(bytes(turn.audio)))
         if turn.kind == "text":
-            self._send_frame(session)
+            self._show(session, self._frames.take(self._clock.now()))
             session.send(SendText(turn.text))
         elif turn.kind == "tool":  # results of robot actions that ended after their turn
             if turn.tool_session == session.serial:
@@ -1209,7 +1183,7 @@ class AgentRuntime:
             return text, False
         self.counters.detections_refused += found.refused
         if found.detections and self.config.detections and self.config.topics.detections:
-            report = DetectionReport(self.config.agent_id, found.detections, self._shown_frame())
+            report = DetectionReport(self.config.agent_id, found.detections, self._frames.shown())
             self.counters.detections_published += 1
             self._publish("detections", partial(self._port.publish_detections, report))
         elif found.detections:
@@ -1635,7 +1609,7 @@ class AgentRuntime:
         session.start(delay_s=max(0.0, self._not_before - now, (self._reconnect_at or now) - now))
         self._session = session
         self._last_activity = now
-        self._frame_sent = self._frame is None
+        self._frames.new_session()
         if self._reconnect_at is not None:  # a new utterance came before the retry: retry now, behind it
             self._reconnect_at = None
             self._replay(session)
