@@ -97,6 +97,7 @@ from by_your_command.agents.robot_tool import (
     result_json,
     verdicts_json,
 )
+from by_your_command.agents.rotation import ROTATION, SessionEnd
 from by_your_command.agents.session import (
     AddContext,
     EndOfTurn,
@@ -248,9 +249,7 @@ class AgentRuntime:
         self._awaited_at = 0.0  # last sign of life of the reply due (reply deadline)
         self._committed_at = 0.0  # when the latest turn was committed (orders late user transcripts)
         self._port_error = ""
-        self._session_ending = ""  # the provider announced its end: rotate at the next boundary
-        self._recycle = ""  # close the session at the next boundary, for this reason
-        self._close_asked_at = 0.0  # when either was set: the session deadline is due from then on
+        self._end = SessionEnd(config.pause_timeout_s, config.max_session_s, config.rotation_margin_s)
         self._session_conversation = 0  # the conversation (context.serial) the session serves
         self._spins = 0
         self._tasks: set[asyncio.Task[None]] = set()  # our own background work (transcriptions)
@@ -401,7 +400,13 @@ class AgentRuntime:
             found.append(_Deadline(playing_until, "playback", _nothing))
         if self._idle(now):
             if self._session is not None:
-                found.append(_Deadline(self._session_close_at(), "session", self._close_idle_session))
+                found.append(
+                    _Deadline(
+                        self._end.close_at(self._session, self._last_activity),
+                        "session",
+                        self._close_idle_session,
+                    )
+                )
             expires = self.context.expires_at()
             if expires is not None:
                 found.append(_Deadline(expires, "conversation", self._conversation_expired))
@@ -706,11 +711,11 @@ class AgentRuntime:
         if self._session is not None:
             self._session.turns += 1
         if self._turn_out is None and self._session_is_old_conversation():
-            await self._leave_old_conversation(self._recycle or "new conversation")
+            await self._leave_old_conversation(self._end.recycling or "new conversation")
         if self._waiting and self._turn_out is None and self._reconnect_at is None:
             self._commit(self._waiting.popleft())
-        if self._idle(now) and (self._session_ending or self._recycle or self._rotation_due(now)):
-            await self._close_session(self._session_ending or self._recycle or "rotation before the limit")
+        if self._idle(now) and (self._end.asked or self._end.rotation_due(self._session, now)):
+            await self._close_session(self._end.asked or ROTATION)
 
     def _publish_turn(self, turn: Turn, outcome: str, why: str) -> None:
         """The turn's record on `metrics`: a failure and its reason are a report for monitors,
@@ -809,8 +814,8 @@ class AgentRuntime:
         """A rotation that is due happens before a new turn at the latest. With turns back to back
         the session is never idle (the next question comes as the last reply ends), and it would
         reach the provider's limit in the middle of one."""
-        if self._session is not None and self._rotation_due(self._clock.now()) and self._nothing_pending():
-            await self._close_session("rotation before the limit")
+        if self._end.rotation_due(self._session, self._clock.now()) and self._nothing_pending():
+            await self._close_session(ROTATION)
 
     def _barge_deadline(self, barge: PendingBargeIn) -> float:
         """The end of the next window the judge has not seen yet (a fixed time: see _windows_passed)."""
@@ -1033,8 +1038,7 @@ class AgentRuntime:
         if turn is not None and turn.utterance_id == utterance_id:
             self._turn_in = None
             if not turn.held and not turn.deferred and turn.audio and self._session is not None:
-                self._close_at_boundary()
-                self._recycle = self._recycle or "a stop's audio is in the provider's input"
+                self._end.recycle("a stop's audio is in the provider's input", self._clock.now())
         else:
             waiting = [t for t in self._waiting if t.utterance_id == utterance_id]
             for queued in waiting:
@@ -1121,10 +1125,11 @@ class AgentRuntime:
         elif isinstance(event, UsageReport):
             self._add_usage(session, turn, event.usage)
         elif isinstance(event, SessionEnding):
-            self._close_at_boundary()
-            self._session_ending = f"the provider is ending the session ({event.reason})"
+            self._end.provider_ends(f"the provider is ending the session ({event.reason})", self._clock.now())
             log.info(
-                "agent %s: %s; rotating at the next turn boundary", self.config.agent_id, self._session_ending
+                "agent %s: %s; rotating at the next turn boundary",
+                self.config.agent_id,
+                self._end.provider_ending,
             )
         else:
             await self._on_provider_error(event)
@@ -1363,8 +1368,7 @@ class AgentRuntime:
         names = ", ".join(tool.name for tool in catalog.tools) or "none"
         log.info("agent %s: the robot's tools: %s", self.config.agent_id, names)
         if self._session is not None and self.config.role is AgentRole.TOOLS:
-            self._close_at_boundary()  # a session is told its tools when it opens
-            self._recycle = self._recycle or "the robot's tools changed"
+            self._end.recycle("the robot's tools changed", self._clock.now())  # told its tools when it opens
 
     async def _start_robot_call(self, session: Session, tool: RobotTool, call: ToolCall) -> None:
         now = self._clock.now()
@@ -1624,8 +1628,7 @@ class AgentRuntime:
         if session is None:
             return
         self._session = None
-        self._session_ending = ""
-        self._recycle = ""
+        self._end.closed()
         self._results.clear()  # results only its own responses could take
         billed = await session.close()
         if session.opened_at is None:  # refused or never connected: the vendor bills nothing
@@ -1659,46 +1662,11 @@ class AgentRuntime:
         )
         self._publish("metrics", partial(self._port.publish_metrics, record))
 
-    def _close_at_boundary(self) -> None:
-        """Close the session once idle. Its deadline is a fixed time (when this was asked), never
-        `now()`: a deadline read again after `now` was taken is never due, and the loop froze."""
-        if not (self._session_ending or self._recycle):
-            self._close_asked_at = self._clock.now()
-
-    def _session_close_at(self) -> float:
-        session = self._session
-        if self._session_ending or self._recycle:
-            return self._close_asked_at
-        close_at = self._last_activity + self.config.pause_timeout_s
-        if session is not None and session.opened_at is not None:
-            close_at = min(close_at, session.opened_at + self._rotation_age())
-        return close_at
-
-    def _rotation_age(self) -> float:
-        session = self._session
-        limit = self.config.max_session_s
-        if session is not None:
-            limit = min(limit, session.provider.max_session_s)
-        margin = self.config.rotation_margin_s if self.config.rotation_margin_s < limit else 0.1 * limit
-        return limit - margin
-
-    def _rotation_due(self, now: float) -> bool:
-        session = self._session
-        return (
-            session is not None and session.opened_at is not None and session.age(now) >= self._rotation_age()
-        )
-
     async def _close_idle_session(self) -> None:
         now = self._clock.now()
         if self._session is None or not self._idle(now):
             return
-        if self._session_ending or self._recycle:
-            reason = self._session_ending or self._recycle
-        elif self._rotation_due(now):
-            reason = "rotation before the limit"
-        else:
-            reason = f"pause of {self.config.pause_timeout_s:g} s"
-        await self._close_session(reason)
+        await self._close_session(self._end.reason(self._session, now))
 
     async def _lose_session(self, reason: str, connected: bool, error: ProviderError | None) -> None:
         """The session died (or was given up): fail what was answering, replay what was not."""
@@ -1706,13 +1674,13 @@ class AgentRuntime:
             raise AgentFatal(_fatal_message(error))
         if error is not None and error.retry_after_s is not None:
             self._not_before = max(self._not_before, self._clock.now() + error.retry_after_s)
-        if connected and self._session_ending:
+        if connected and self._end.provider_ending:
             # Announced (goAway) and closed before our turn boundary came, e.g. while the last reply
             # still played here: the end it announced, not a failure. A cut reply still fails below.
             log.info(
                 "agent %s: session %d ended by the provider: %s", self.config.agent_id, self._serial, reason
             )
-            await self._close_session(self._session_ending)
+            await self._close_session(self._end.provider_ending)
         else:
             if connected:
                 self.counters.sessions_failed += 1
@@ -1782,8 +1750,7 @@ class AgentRuntime:
         if self._turn_out is None:
             await self._leave_old_conversation(f"new conversation ({why})")
         else:  # a reply is being made: it ends first, then the session goes (_finish_turn)
-            self._close_at_boundary()
-            self._recycle = f"new conversation ({why})"
+            self._end.recycle(f"new conversation ({why})", self._clock.now(), replace=True)
 
     def _session_is_old_conversation(self) -> bool:
         return self._session is not None and self._session_conversation != self.context.serial
