@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from by_your_command.agents.reply_audio import ReplyAudio
+from by_your_command.agents.turn import Turn
 
 # A transcript that never catches up with a talking user (a slow machine) cannot hold the reply
 # paused for ever: past this many windows the barge-in is judged on what is known.
@@ -71,3 +72,76 @@ def judge(evidence: Evidence, rules: Rules) -> Verdict:
     if over and (evidence.transcript_current or evidence.windows_passed >= WINDOWS_BEFORE_GIVING_UP):
         return Verdict.FALSE
     return Verdict.WAIT
+
+
+class BargeInWatch:
+    """The one barge-in being judged: the paused reply, the utterance spoken over it (the first
+    that starts while it is pending; held from the provider until judged), and the judge's windows.
+    The runtime owns it and acts on its verdicts (times are passed in: no clock of its own)."""
+
+    def __init__(self, rules: Rules) -> None:
+        self.rules = rules
+        self.pending: PendingBargeIn | None = None
+        self.turn: Turn | None = None
+
+    def start(self, reply: ReplyAudio, now: float, turn: Turn | None = None, resumed: bool = False) -> None:
+        self.pending = PendingBargeIn(reply, reply.stream_id, now, resumed=resumed)
+        self.turn = turn
+
+    def join(self, turn: Turn) -> bool:
+        """A new utterance: the one judged if the pending barge-in has none yet (its audio held)."""
+        if self.pending is None or self.turn is not None:
+            return False
+        turn.held = True
+        self.turn = turn
+        return True
+
+    def judges(self, turn: Turn) -> bool:
+        return self.pending is not None and self.turn is turn
+
+    def deadline(self) -> float | None:
+        """The end of the next window not judged yet: a fixed time (see `windows_passed`)."""
+        pending = self.pending
+        if pending is None:
+            return None
+        return pending.started_at + (pending.windows_judged + 1) * self.rules.window_s
+
+    def windows_passed(self, now: float) -> int:
+        """0 within the window, 1 after it (a transcript still coming may be waited for), then
+        WINDOWS_BEFORE_GIVING_UP: the same sums as the deadline, so a due deadline always sees it."""
+        pending = self.pending
+        assert pending is not None
+        window = self.rules.window_s
+        if now >= pending.started_at + WINDOWS_BEFORE_GIVING_UP * window:
+            return WINDOWS_BEFORE_GIVING_UP
+        return 1 if now >= pending.started_at + window else 0
+
+    def evidence(self, now: float) -> Evidence:
+        pending, turn = self.pending, self.turn
+        assert pending is not None
+        return Evidence(
+            turn.voiced_ms if turn is not None else 0.0,
+            turn is not None and turn.ended,
+            self.windows_passed(now),
+            pending.words,
+            turn is not None and not pending.transcribing and pending.transcribed_bytes >= len(turn.audio),
+        )
+
+    def judge(self, now: float) -> tuple[Verdict, Evidence]:
+        """The verdict on what is known now; WAIT remembers the windows seen (the next deadline)."""
+        pending = self.pending
+        assert pending is not None
+        rules = self.rules
+        if pending.transcriber_failed:
+            rules = Rules(rules.min_ms, 0, rules.window_s)  # its length alone decides
+        evidence = self.evidence(now)
+        verdict = judge(evidence, rules)
+        if verdict is Verdict.WAIT:
+            pending.windows_judged = evidence.windows_passed
+        return verdict, evidence
+
+    def end(self) -> tuple[PendingBargeIn | None, Turn | None]:
+        """Judged (or settled otherwise): nothing pending any more; what was."""
+        ended = self.pending, self.turn
+        self.pending = self.turn = None
+        return ended

@@ -19,14 +19,7 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
-from by_your_command.agents.barge_in import (
-    WINDOWS_BEFORE_GIVING_UP,
-    Evidence,
-    PendingBargeIn,
-    Rules,
-    Verdict,
-    judge,
-)
+from by_your_command.agents.barge_in import BargeInWatch, PendingBargeIn, Rules, Verdict
 from by_your_command.agents.clock import Clock, LoopClock
 from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
 from by_your_command.agents.context import ContextStore
@@ -228,8 +221,7 @@ class AgentRuntime:
         self._closed_utterances: deque[int] = deque(maxlen=RECENT_UTTERANCES)
         self._reply: ReplyAudio | None = None  # the latest spoken reply (may still be playing)
         self._cut: deque[str] = deque(maxlen=RECENT_CUTS)  # responses cut by a confirmed barge-in
-        self._barge: PendingBargeIn | None = None
-        self._barge_turn: Turn | None = None
+        self._watch = BargeInWatch(self._barge_rules)  # the barge-in being judged, if any
         self._tools = PendingVerdicts()
         self._results = ResponseResults()
         self._catalog = Catalog(())  # the robot's own tools, from `robot_tools` (docs/tools.md)
@@ -383,8 +375,9 @@ class AgentRuntime:
         out = self._turn_out
         if out is not None and not out.tool_calls_open:
             found.append(_Deadline(self._awaited_at + c.reply_timeout_s, "reply", self._reply_timed_out))
-        if self._barge is not None:
-            found.append(_Deadline(self._barge_deadline(self._barge), "barge-in", self._judge_barge))
+        barge_deadline = self._watch.deadline()
+        if barge_deadline is not None:
+            found.append(_Deadline(barge_deadline, "barge-in", self._judge_barge))
         tool_deadline = self._tools.next_deadline()
         if tool_deadline is not None:
             found.append(_Deadline(tool_deadline, "tool verdict", self._tool_verdicts_late))
@@ -422,7 +415,7 @@ class AgentRuntime:
             self._turn_in is None
             and self._turn_out is None
             and not self._waiting
-            and self._barge is None
+            and self._watch.pending is None
             and len(self._tools) == 0
             # a running action keeps its session: only that session can take the call's result
             and not (self.robot_calls and self.config.keep_session_while_acting)
@@ -519,9 +512,7 @@ class AgentRuntime:
         turn.frame_since = self._utterance_ended_at
         turn.last_chunk_at = now
         turn.deferred = bool(self._waiting) and not self._duplex  # duplex: the model hears it now
-        if self._barge is not None and self._barge_turn is None:
-            turn.held = True
-            self._barge_turn = turn
+        self._watch.join(turn)  # the speech over a paused reply: held until judged
         self._turn_in = turn
         await self._continue_utterance(turn, chunk)
 
@@ -557,7 +548,7 @@ class AgentRuntime:
             self._show(self._session, self._frames.give_to(turn.number, self._clock.now(), since))
         if chunk.is_end:
             await self._end_utterance(turn)
-        elif self._barge is not None and self._barge_turn is turn:
+        elif self._watch.judges(turn):
             await self._judge_barge()
             self._hear_barge_in()
 
@@ -576,7 +567,7 @@ class AgentRuntime:
         self._utterance_ended_at = now
         if turn.utterance_id is not None:
             self._closed_utterances.append(turn.utterance_id)
-        if self._barge is not None and self._barge_turn is turn:
+        if self._watch.judges(turn):
             await self._judge_barge()
             self._hear_barge_in()  # the whole utterance, when its transcript is still wanted
             if turn.held:  # judged false, or still being judged: not sent (yet)
@@ -789,7 +780,7 @@ class AgentRuntime:
         if (
             self.config.barge_in
             and not self._duplex
-            and self._barge is None
+            and self._watch.pending is None
             and reply is not None
             and not reply.cut
             and reply.is_playing(now)
@@ -799,8 +790,7 @@ class AgentRuntime:
             # same stream, so nothing is re-sent and played_ms stays that of the whole reply.
             self._player(reply.stream_id, "barge_in", PlayerAction.PAUSE)
             self.counters.barge_ins += 1
-            self._barge = PendingBargeIn(reply, reply.stream_id, now)
-            self._barge_turn = None
+            self._watch.start(reply, now)
             log.info(
                 "agent %s: speech over %s: paused at ~%d ms",
                 self.config.agent_id,
@@ -817,21 +807,9 @@ class AgentRuntime:
         if self._end.rotation_due(self._session, self._clock.now()) and self._nothing_pending():
             await self._close_session(ROTATION)
 
-    def _barge_deadline(self, barge: PendingBargeIn) -> float:
-        """The end of the next window the judge has not seen yet (a fixed time: see _windows_passed)."""
-        return barge.started_at + (barge.windows_judged + 1) * self.config.barge_in_window_s
-
-    def _windows_passed(self, barge: PendingBargeIn) -> int:
-        """0 within the window, 1 after it (a transcript still coming may be waited for), then
-        WINDOWS_BEFORE_GIVING_UP: the same sums as the deadline, so a due deadline always sees it."""
-        now, window = self._clock.now(), self.config.barge_in_window_s
-        if now >= barge.started_at + WINDOWS_BEFORE_GIVING_UP * window:
-            return WINDOWS_BEFORE_GIVING_UP
-        return 1 if now >= barge.started_at + window else 0
-
     def _hear_barge_in(self) -> None:
         """Transcribe the held speech (off the loop) when its words can still decide the barge-in."""
-        barge, turn = self._barge, self._barge_turn
+        barge, turn = self._watch.pending, self._watch.turn
         if barge is None or turn is None or self._transcriber is None or barge.transcribing:
             return
         if len(turn.audio) <= barge.transcribed_bytes or turn.voiced_ms < self.config.min_barge_in_ms:
@@ -856,7 +834,7 @@ class AgentRuntime:
     async def _on_heard(self, heard: _Heard) -> None:
         barge = heard.barge
         barge.transcribing = False
-        if self._barge is not barge:
+        if self._watch.pending is not barge:
             return  # judged meanwhile
         barge.transcribed_bytes = heard.covered_bytes
         if heard.text is None:
@@ -871,35 +849,22 @@ class AgentRuntime:
                 heard.text,
                 len(words),
             )
-        turn = self._barge_turn
+        turn = self._watch.turn
         await self._judge_barge()
         self._hear_barge_in()
-        if turn is not None and self._barge is None and turn.ended and not turn.held:
+        if turn is not None and self._watch.pending is None and turn.ended and not turn.held:
             self._utterance_complete(turn)  # confirmed after the utterance ended
 
     async def _judge_barge(self) -> None:
-        barge = self._barge
-        if barge is None:
+        if self._watch.pending is None:
             return
-        turn = self._barge_turn
-        rules = self._barge_rules
-        if barge.transcriber_failed:
-            rules = Rules(rules.min_ms, 0, rules.window_s)
-        evidence = Evidence(
-            turn.voiced_ms if turn is not None else 0.0,
-            turn is not None and turn.ended,
-            self._windows_passed(barge),
-            barge.words,
-            turn is not None and not barge.transcribing and barge.transcribed_bytes >= len(turn.audio),
-        )
-        verdict = judge(evidence, rules)
-        if verdict is Verdict.WAIT:
-            barge.windows_judged = evidence.windows_passed
-            return
-        self._barge = None
-        self._barge_turn = None
-        reply = barge.reply
         now = self._clock.now()
+        verdict, evidence = self._watch.judge(now)
+        if verdict is Verdict.WAIT:
+            return
+        barge, turn = self._watch.end()
+        assert barge is not None
+        reply = barge.reply
         if barge.resumed and verdict is Verdict.CONFIRMED and not reply.is_playing(now):
             verdict = Verdict.FALSE  # the reply ended meanwhile: nothing to cut, an utterance like any
             if turn is not None:
@@ -932,8 +897,7 @@ class AgentRuntime:
             if still_talking and not reply.cut and reply.is_playing(now):
                 # The reply plays on, and what follows may still prove an interruption: the same
                 # utterance is judged again, a fresh window from now.
-                self._barge = PendingBargeIn(reply, reply.stream_id, now, resumed=True)
-                self._barge_turn = turn
+                self._watch.start(reply, now, turn, resumed=True)
             elif still_talking and turn is not None:
                 self._release_held(turn)  # the reply is over: an utterance like any other
             # an utterance that ended without proof stays held: never sent, never committed
@@ -992,12 +956,10 @@ class AgentRuntime:
             bool(stop.utterance_id) and answered is not None and answered.utterance_id == stop.utterance_id
         )
         now = self._clock.now()
-        reply, barge = self._reply, self._barge
-        if barge is not None:  # the stop settles it: the reply is cut, the speech is the user's
-            self._barge = None
-            if self._barge_turn is not None:
-                self._barge_turn.held = False
-            self._barge_turn = None
+        reply = self._reply
+        _, held = self._watch.end()  # the stop settles a barge-in: the reply is cut
+        if held is not None:
+            held.held = False  # the speech is the user's
         cut = reply is not None and not reply.cut and reply.stream_started_at is not None
         heard = self._cut_reply(reply, "safety_stop", now) if cut and reply is not None else 0
         log.warning(
@@ -1556,7 +1518,7 @@ class AgentRuntime:
                 await self._finish_turn(turn, "acting")
         elif turn.tool_calls_open or done.response_id in turn.tool_responses:
             return  # the reply continues once the verdicts are in (a tool-calling response is never the last)
-        elif self._barge is not None and self._barge.reply is reply:
+        elif self._watch.pending is not None and self._watch.pending.reply is reply:
             return  # finished when the barge-in is judged
         else:
             outcome = "interrupted" if done.response_id in self._cut else done.status.value
