@@ -11,7 +11,6 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import re
 import secrets
 from collections import deque
 from collections.abc import Awaitable, Callable, Coroutine
@@ -73,23 +72,13 @@ from by_your_command.agents.port import DetectionReport, PlayerAction, PortClose
 from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup, ToolResult, ToolSpec
 from by_your_command.agents.reply_audio import ReplyAudio
 from by_your_command.agents.robot_calls import (
-    MAX_ACTIVE_CALLS,
     REPLY_GRACE_S,
     RobotCall,
     RobotCalls,
     call_result,
     is_stop_request,
 )
-from by_your_command.agents.robot_tool import (
-    ROBOT_COMMAND_TOOL,
-    TOOL_NAME,
-    BadToolCall,
-    PendingVerdicts,
-    ResponseResults,
-    parse_command,
-    result_json,
-    verdicts_json,
-)
+from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL, result_json, verdicts_json
 from by_your_command.agents.rotation import ROTATION, SessionEnd
 from by_your_command.agents.session import (
     AddContext,
@@ -108,6 +97,15 @@ from by_your_command.agents.session import (
     SessionOpened,
     SessionTimeouts,
     backoff_s,
+)
+from by_your_command.agents.tool_calls import (
+    PendingVerdicts,
+    Refuse,
+    ResponseResults,
+    RunRobotTool,
+    decide,
+    refusal,
+    robot_tool_spec,
 )
 from by_your_command.agents.turn import Turn
 from by_your_command.audio.pcm import StreamResampler
@@ -1170,18 +1168,14 @@ class AgentRuntime:
         if turn is not None:
             turn.tool_calls_open.add(call.call_id)
             turn.tool_responses.add(call.response_id)
-        robot_tool = self._catalog.get(call.name) if self.config.role is AgentRole.TOOLS else None
-        if robot_tool is not None:
-            await self._start_robot_call(session, robot_tool, call)
+        decision = decide(call, self.config.role is AgentRole.TOOLS, self._catalog)
+        if isinstance(decision, RunRobotTool):
+            await self._start_robot_call(session, decision.tool, call)
             return
-        if self.config.role is not AgentRole.TOOLS or call.name != TOOL_NAME:
-            self._deliver_tool_result(call.call_id, result_json(False, "", f"no tool named {call.name!r}"))
+        if isinstance(decision, Refuse):
+            self._deliver_tool_result(call.call_id, decision.output)
             return
-        try:
-            command = parse_command(call.arguments)
-        except BadToolCall as error:
-            self._deliver_tool_result(call.call_id, result_json(False, "", str(error)))
-            return
+        command = decision.command
         if is_stop_request(command):  # the model stops the robot: its actions too
             await self._cancel_robot_calls(f"stopped ({command!r})")
         elif self._duplex and await self._delegate_to_robot_tool(session, call, command):
@@ -1196,7 +1190,7 @@ class AgentRuntime:
     async def _delegate_to_robot_tool(self, session: Session, call: ToolCall, said: str) -> bool:
         """A full-duplex delegation carries the user's words, not a tool: one of the robot's tools
         when they are its declared phrase (agents/delegation.py)."""
-        specs = [_robot_tool_spec(tool) for tool in self._catalog.tools]
+        specs = [robot_tool_spec(tool) for tool in self._catalog.tools]
         delegated = match_tool(said, specs)
         tool = self._catalog.get(delegated.tool) if delegated is not None else None
         if delegated is None or tool is None:
@@ -1301,7 +1295,7 @@ class AgentRuntime:
     def _tool_specs(self) -> tuple[ToolSpec, ...]:
         if self.config.role is not AgentRole.TOOLS:
             return ()
-        return (ROBOT_COMMAND_TOOL, *(_robot_tool_spec(tool) for tool in self._catalog.tools))
+        return (ROBOT_COMMAND_TOOL, *(robot_tool_spec(tool) for tool in self._catalog.tools))
 
     async def _on_robot_tool_input(
         self, item: CallReplied | CallFeedback | ToolCatalog | _SendFailed
@@ -1335,18 +1329,20 @@ class AgentRuntime:
     async def _start_robot_call(self, session: Session, tool: RobotTool, call: ToolCall) -> None:
         now = self._clock.now()
         try:
-            refusal = self._robot_call_refusal(tool, call.arguments, now)
-            if not refusal and tool.kind == "command":
+            refused = refusal(
+                tool, call.arguments, self._attention, self.robot_calls, self.context.last_user_text(), now
+            )
+            if not refused and tool.kind == "command":
                 command = tool.command_text(call.arguments)
-            elif not refusal:
+            elif not refused:
                 message = tool.build(call.arguments)
         except ToolArgumentError as error:
-            refusal = f"bad arguments: {error}"
-        if refusal:
+            refused = f"bad arguments: {error}"
+        if refused:
             self.robot_calls.counters.refused += 1
-            log.info("agent %s: %s refused: %s", self.config.agent_id, tool.name, refusal)
-            self._publish_call(tool, "", call.arguments, "refused", error=refusal)
-            self._deliver_tool_result(call.call_id, call_result(tool.name, False, "refused", error=refusal))
+            log.info("agent %s: %s refused: %s", self.config.agent_id, tool.name, refused)
+            self._publish_call(tool, "", call.arguments, "refused", error=refused)
+            self._deliver_tool_result(call.call_id, call_result(tool.name, False, "refused", error=refused))
             return
         self._requests += 1
         request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
@@ -1374,21 +1370,6 @@ class AgentRuntime:
             send = partial(self._port.call_service, request_id, tool.ros_name, tool.type, message)
         self._send_robot_request(request_id, send)
         self._publish_call(tool, request_id, call.arguments, "running")
-
-    def _robot_call_refusal(self, tool: RobotTool, arguments: str, now: float) -> str:
-        """Why the rules refuse this call now ("" if they do not): nothing is sent then."""
-        if self._attention is not Attention.AWAKE and not tool.rules.while_asleep:
-            return f"the robot is {self._attention.value}: {tool.name} waits until it is woken"
-        wait = self.robot_calls.too_soon(tool, now)
-        if wait > 0:
-            return f"called too soon: {tool.name} may run again in {wait:.1f} s"
-        if tool.kind != "command" and len(self.robot_calls) >= MAX_ACTIVE_CALLS:
-            return f"the robot is already doing {MAX_ACTIVE_CALLS} things: stop one first"
-        if tool.rules.confirm and not (
-            _confirmed(arguments) and _sounds_like_yes(self.context.last_user_text())
-        ):
-            return "this needs the user's spoken yes first: ask them, then call again with confirmed: true"
-        return ""
 
     def _send_robot_request(self, request_id: str, send: Callable[[], Awaitable[None]]) -> None:
         async def attempt() -> None:
@@ -1772,39 +1753,6 @@ class AgentRuntime:
 
     def _keep_limit(self, rate: int) -> int:
         return int(self.config.connect_buffer_s * rate) * 2
-
-
-def _robot_tool_spec(tool: RobotTool) -> ToolSpec:
-    spoken = tuple((phrase, json.dumps(arguments)) for phrase, arguments in tool.spoken_forms())
-    return ToolSpec(tool.name, tool.description, tool.parameters, tool.kind == "action", spoken)
-
-
-def _confirmed(arguments: str) -> bool:
-    try:
-        return json.loads(arguments).get("confirmed") is True
-    except (ValueError, AttributeError):
-        return False
-
-
-_YES = {
-    "yes",
-    "yeah",
-    "yep",
-    "sure",
-    "ok",
-    "okay",
-    "confirm",
-    "confirmed",
-    "go",
-    "ahead",
-    "please",
-    "correct",
-}
-
-
-def _sounds_like_yes(text: str) -> bool:
-    """Positive evidence for a confirmation: the user's last words hold a yes."""
-    return any(word in _YES for word in re.findall(r"[a-z]+", text.lower()))
 
 
 async def _nothing() -> None:

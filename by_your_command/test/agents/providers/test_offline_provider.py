@@ -63,7 +63,7 @@ UTTERANCES = {
     "kitchen chat": "the kitchen is nice",
     "boat": "I docked my boat",
 }
-# The robot's own tools, as the runtime offers them from the catalog (agents/runtime._robot_tool_spec).
+# The robot's own tools, as the runtime offers them from the catalog (agents/tool_calls.robot_tool_spec).
 GO_TO = ToolSpec(
     "go_to",
     "Drive to a named place.",
