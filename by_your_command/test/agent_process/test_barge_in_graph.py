@@ -7,16 +7,11 @@ past the VAD hid that every cough was confirmed by the VAD's own pre-roll."""
 
 from __future__ import annotations
 
-import threading
-import time
-from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from pathlib import Path
 
-import numpy as np
 import pytest
 from agent_graph import (
-    VAD_RATE,
     agent_config,
     agent_process,
     alive,
@@ -28,91 +23,15 @@ from agent_graph import (
     setup_requests,
     until,
 )
-from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk, Interruption
-from byc_testing import python_module, running_process
+from microphone import Microphone, spoken, vad_process
 
 from by_your_command.emulators.openai_script import Say, Script, Turn
-from by_your_command.nodes._audio_msgs import make_audio_chunk
 from by_your_command.nodes._qos import AUDIO_IN
-from by_your_command.offline.speaker import Speaker, SpeakerConfig
 
 pytestmark = [pytest.mark.ros, pytest.mark.e2e, pytest.mark.timeout(180)]
 
 MS_PER_CHAR = 40
-BLOCK = 512  # the microphone's block: 32 ms
-NS_PER_S = 1_000_000_000
-
-
-class Microphone:
-    """A live microphone on `audio`: a faint room, in real time, stamped on one timeline; `say`
-    mixes a sound in at the next block."""
-
-    def __init__(self, publisher: object) -> None:
-        self._publisher = publisher
-        self._pending: list[np.ndarray] = []
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self.said_at: list[float] = []
-
-    def say(self, pcm: np.ndarray) -> None:
-        with self._lock:
-            self._pending.append(pcm.astype(np.int16))
-
-    def busy(self) -> bool:
-        with self._lock:
-            return bool(self._pending)
-
-    def _run(self) -> None:
-        rng = np.random.default_rng(5)
-        start_wall, start_mono = time.time_ns(), time.monotonic()
-        sent = 0
-        queued = np.zeros(0, dtype=np.int16)
-        while not self._stop.is_set():
-            with self._lock:
-                if self._pending and not len(queued):
-                    queued = self._pending.pop(0)
-                    self.said_at.append(time.monotonic())
-            block = rng.normal(0, 30, BLOCK).astype(np.int16)
-            if len(queued):
-                part, queued = queued[:BLOCK], queued[BLOCK:]
-                block[: len(part)] = np.clip(block[: len(part)].astype(np.int32) + part, -32768, 32767)
-            stamp = start_wall + sent * NS_PER_S // VAD_RATE
-            self._publisher.publish(  # type: ignore[attr-defined]
-                make_audio_chunk(block, VAD_RATE, 1, Time(sec=stamp // NS_PER_S, nanosec=stamp % NS_PER_S))
-            )
-            sent += BLOCK
-            self._stop.wait(max(0.0, start_mono + sent / VAD_RATE - time.monotonic()))
-
-    def __enter__(self) -> Microphone:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-
-
-@contextmanager
-def vad_process(namespace: str) -> Iterator[object]:
-    """The VAD as the external / aec profiles run it: the shipped defaults (pre-roll 480 ms). The
-    stop spotter is off, as in bench_barge_in.py: it leans to stopping, and now and then takes the
-    test's one-word cough ("ha", heard "car") for a stop, which is its own figure
-    (bench_safety_stop.py: false stops), not the barge-in judge's."""
-    command = python_module(
-        "by_your_command.nodes.silero_vad_node",
-        "--ros-args", "-r", f"__ns:={namespace}", "-p", "input_topic:=audio", "-p", "echo_gate:=false",
-        "-p", "stop_spotter:=false",
-    )  # fmt: skip
-    with running_process(command) as process:
-        yield process
-
-
-def spoken(text: str) -> np.ndarray:
-    pcm, rate = Speaker(SpeakerConfig(voice="en-us", sample_rate=VAD_RATE)).say(text)
-    assert rate == VAD_RATE
-    return np.frombuffer(pcm, dtype="<i2")
 
 
 def test_a_cough_resumes_the_reply_and_a_later_question_truncates_at_all_that_was_heard(
