@@ -1,7 +1,7 @@
 """ament_python package: executables go to lib/by_your_command so `ros2 run` finds them.
 
 The same file builds a plain wheel (`pip install ./by_your_command`) for machines without ROS, where
-agents run: config/*.yaml then ships inside the Python package too (prompts/locate.py finds it there).
+agents run: config/*.yaml then ships inside the Python package too (config_files/locate.py finds it there).
 """
 
 from glob import glob

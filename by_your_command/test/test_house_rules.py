@@ -1,4 +1,5 @@
-"""Rules that keep the package usable without ROS: agents must run where rclpy does not exist."""
+"""Rules that keep the package usable without ROS (agents must run where rclpy does not exist), and
+imports between sub-packages running one way."""
 
 from __future__ import annotations
 
@@ -63,6 +64,42 @@ def ros_imports(path: Path, root: Path = REPO_ROOT) -> list[str]:
     return found
 
 
+# Sub-packages that must not import others: the arrows run one way, prompts → commands →
+# config_files (prompts expand the command vocabulary; both load their YAML with config_files).
+ONE_WAY = {
+    "commands": {"prompts"},
+    "config_files": {"prompts", "commands"},
+}
+
+
+def sub_packages_imported(path: Path, package: str) -> list[tuple[int, str]]:
+    """(line, sub-package of `package`) for each absolute import of one, `from package import x` too."""
+    found: list[tuple[int, str]] = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        modules: list[str] = []
+        if isinstance(node, ast.Import):
+            modules = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            modules = [f"{node.module}.{alias.name}" for alias in node.names]
+        found += [
+            (node.lineno, parts[1])
+            for parts in (module.split(".") for module in modules)
+            if parts[0] == package and len(parts) > 1
+        ]
+    return found
+
+
+def backward_imports(package_dir: Path, root: Path = REPO_ROOT) -> list[str]:
+    """Imports ONE_WAY forbids, in the package at `package_dir`."""
+    return [
+        f"{path.relative_to(root)}:{line} imports {package_dir.name}.{imported}"
+        for importer, forbidden in ONE_WAY.items()
+        for path in sorted((package_dir / importer).rglob("*.py"))
+        for line, imported in sub_packages_imported(path, package_dir.name)
+        if imported in forbidden
+    ]
+
+
 @pytest.mark.unit
 def test_ros_is_imported_only_in_nodes() -> None:
     offences = [line for path in core_modules() for line in ros_imports(path)]
@@ -91,6 +128,28 @@ def test_the_rule_checker_catches_an_offence(tmp_path: Path) -> None:
     assert ros_imports(offender, tmp_path) == [
         "leaky.py:2 imports rclpy.node",
         "leaky.py:3 imports std_msgs.msg",
+    ]
+
+
+@pytest.mark.unit
+def test_imports_between_sub_packages_run_one_way() -> None:
+    offences = backward_imports(PACKAGE_DIR)
+    assert not offences, f"imports against the one-way rule {ONE_WAY}:\n" + "\n".join(offences)
+
+
+@pytest.mark.unit
+def test_the_one_way_checker_catches_a_backward_import(tmp_path: Path) -> None:
+    package = tmp_path / "by_your_command"
+    for sub_package, source in {
+        "commands": "from by_your_command.config_files import locate\nimport by_your_command.prompts.x\n",
+        "config_files": "import os\nfrom by_your_command import commands\nfrom by_your_command import net\n",
+        "prompts": "from by_your_command.commands import vocabulary\n",  # the allowed direction
+    }.items():
+        (package / sub_package).mkdir(parents=True)
+        (package / sub_package / "module.py").write_text(source)
+    assert backward_imports(package, tmp_path) == [
+        "by_your_command/commands/module.py:2 imports by_your_command.prompts",
+        "by_your_command/config_files/module.py:2 imports by_your_command.commands",
     ]
 
 

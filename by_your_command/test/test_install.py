@@ -91,7 +91,7 @@ def test_installed_wheel_finds_its_config_and_expands_prompts_without_ros(
 ) -> None:
     probe = (
         "import json, by_your_command\n"
-        "from by_your_command.prompts.locate import find_config_file\n"
+        "from by_your_command.config_files.locate import find_config_file\n"
         "from by_your_command.prompts.library import load_prompt_library\n"
         "try:\n    import rclpy\n    ros = True\nexcept ImportError:\n    ros = False\n"
         "library = load_prompt_library()\n"

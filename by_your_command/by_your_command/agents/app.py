@@ -24,9 +24,9 @@ from by_your_command.agents.config import AgentConfig, AgentConfigError, instruc
 from by_your_command.agents.overlap_words import LocalTranscriber
 from by_your_command.agents.runtime import AgentFatal, AgentRuntime, Transcriber
 from by_your_command.bridge.client import BridgeClient, ClientOptions
+from by_your_command.config_files.locate import ConfigFileNotFound
+from by_your_command.config_files.located_yaml import ConfigError
 from by_your_command.prompts.library import PromptFileError, load_prompt_library
-from by_your_command.prompts.locate import ConfigFileNotFound
-from by_your_command.prompts.located_yaml import ConfigError
 from by_your_command.stop_signals import StopRequests, StopVerdict
 from by_your_command.vad.spoken_wake import RecognizerUnavailableError
 

@@ -21,8 +21,8 @@ from urllib.parse import parse_qs, urlsplit
 import yaml
 
 from by_your_command.agents.config import AgentConfig, AgentConfigError, EchoMode, parse_agent_config
-from by_your_command.prompts.locate import ConfigFileNotFound, find_config_file
-from by_your_command.prompts.located_yaml import BoundedSafeLoader
+from by_your_command.config_files.locate import ConfigFileNotFound, find_config_file
+from by_your_command.config_files.located_yaml import BoundedSafeLoader
 
 DEFAULT_BRIDGE_URL = "ws://127.0.0.1:9090"
 BRIDGE_URL_ENV = "BYC_BRIDGE_URL"

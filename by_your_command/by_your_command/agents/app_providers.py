@@ -110,7 +110,10 @@ def _cloud_settings(cls: Any, settings: Mapping[str, Any]) -> tuple[Any, dict[st
 
 def _build_openai(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     # Imported here: the openai SDK is only needed by agents that use it.
-    from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeConfig, OpenAIRealtimeProvider
+    from by_your_command.agents.providers.openai_realtime.provider import (
+        OpenAIRealtimeConfig,
+        OpenAIRealtimeProvider,
+    )
 
     config, values = _cloud_settings(OpenAIRealtimeConfig, settings)
 
@@ -126,9 +129,9 @@ def _build_openai(settings: Mapping[str, Any], key: str) -> BuiltProvider:
 def _build_offline(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     # Imported here: pocketsphinx is only needed by agents that use it.
     try:
-        from by_your_command.agents.providers.offline import OfflineProvider
-        from by_your_command.agents.providers.offline_config import OfflineConfig
-        from by_your_command.agents.providers.offline_engine import LocalEngine
+        from by_your_command.agents.providers.local.config import OfflineConfig
+        from by_your_command.agents.providers.local.engine import LocalEngine
+        from by_your_command.agents.providers.local.provider import OfflineProvider
     except ImportError as missing:
         raise AgentConfigError([f"provider.type: offline needs {missing.name or missing}"]) from None
 
@@ -148,8 +151,8 @@ def _build_offline(settings: Mapping[str, Any], key: str) -> BuiltProvider:
 
 def _build_gemini(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     # Imported here: google-genai is only needed by agents that use it.
-    from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
-    from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
+    from by_your_command.agents.providers.gemini_live.provider import GeminiLiveConfig, GeminiLiveProvider
+    from by_your_command.agents.providers.gemini_live.resumption import ResumptionHandles
 
     config, values = _cloud_settings(GeminiLiveConfig, settings)
     handles = ResumptionHandles()  # one per agent: every session of this agent resumes the last one
@@ -165,8 +168,8 @@ def _build_gemini(settings: Mapping[str, Any], key: str) -> BuiltProvider:
 
 def _build_gpt_live(settings: Mapping[str, Any], key: str) -> BuiltProvider:
     # Imported here: the openai SDK is only needed by agents that use it.
-    from by_your_command.agents.providers.gpt_live import GptLiveProvider
-    from by_your_command.agents.providers.gpt_live_config import GptLiveConfig
+    from by_your_command.agents.providers.gpt_live.config import GptLiveConfig
+    from by_your_command.agents.providers.gpt_live.provider import GptLiveProvider
 
     config, values = _cloud_settings(GptLiveConfig, settings)
 

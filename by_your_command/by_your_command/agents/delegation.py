@@ -1,7 +1,7 @@
 """A GPT-Live client delegation → one of the robot's tools, by what the user said.
 
 A client delegation names no function and carries no arguments: the task is the user's words
-(gpt_live_events). Without a second model to read them, the words are matched against the tools'
+(gpt_live/events.py). Without a second model to read them, the words are matched against the tools'
 declared phrases (tools.yaml `spoken:`, the ones the offline agent hears), whole: "go to the
 kitchen", "please go to the kitchen". Only a whole match counts, after polite words at either end:
 "don't go to the kitchen" contains the phrase but is not it, and motion needs positive evidence.

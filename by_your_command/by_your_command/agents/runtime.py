@@ -96,7 +96,6 @@ from by_your_command.agents.session import (
     SessionMessage,
     SessionOpened,
     SessionTimeouts,
-    backoff_s,
 )
 from by_your_command.agents.tool_calls import (
     PendingVerdicts,
@@ -109,6 +108,7 @@ from by_your_command.agents.tool_calls import (
 )
 from by_your_command.agents.turn import Turn
 from by_your_command.audio.pcm import StreamResampler
+from by_your_command.net.backoff import backoff_s
 from by_your_command.tools.catalog import Catalog, CatalogError, RobotTool, ToolArgumentError
 
 log = logging.getLogger(__name__)

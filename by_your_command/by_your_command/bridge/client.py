@@ -74,6 +74,8 @@ from by_your_command.bridge.protocol import (
     normalize_type,
     parse_request,
 )
+from by_your_command.net.backoff import backoff_s
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 __all__ = [
     "BridgeClient",
@@ -94,9 +96,7 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-# websockets logs handshake headers (the token) at DEBUG: give it a logger that never does.
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 # Bridge status codes that report messages that will never arrive, and what the agent is told.
 _LOSS_REASONS = {
@@ -114,7 +114,6 @@ class ClientOptions:
     state_key_fields: tuple[tuple[str, str], ...] = (("playback_status", "stream_id"),)
     backoff_initial_s: float = 0.1
     backoff_max_s: float = 5.0
-    backoff_jitter: float = 0.5  # each wait is drawn from [1 - jitter, 1] × the exponential delay
     stable_after_s: float = 5.0  # a connection that lasted this long resets the backoff
     open_timeout_s: float = 5.0
     close_timeout_s: float = 2.0
@@ -130,8 +129,6 @@ class ClientOptions:
     def __post_init__(self) -> None:
         if not 0 < self.backoff_initial_s <= self.backoff_max_s:
             raise ValueError("need 0 < backoff_initial_s <= backoff_max_s")
-        if not 0 <= self.backoff_jitter < 1:
-            raise ValueError(f"backoff_jitter must be in [0, 1), got {self.backoff_jitter}")
         if self.receive_queue < 1 or self.command_queue < 1 or self.status_history < 1:
             raise ValueError("receive_queue, command_queue and status_history must be at least 1")
         if self.max_outstanding_calls < 1 or not self.reply_timeout_s > 0 or not self.reply_grace_s >= 0:
@@ -141,12 +138,6 @@ class ClientOptions:
         return InboxLimits(
             self.receive_queue, self.command_queue, self.state_keys_per_topic, self.state_key_fields
         )
-
-
-def backoff_delay(options: ClientOptions, attempt: int, rng: random.Random) -> float:
-    """Capped exponential delay with jitter, so many agents do not reconnect in lockstep."""
-    delay = min(options.backoff_max_s, options.backoff_initial_s * 2.0 ** min(attempt, 30))
-    return delay * rng.uniform(1.0 - options.backoff_jitter, 1.0)
 
 
 @dataclass
@@ -576,7 +567,10 @@ class BridgeClient:
             if self._stop_reason is not None:
                 return
             attempt = 0 if loop.time() - started >= self.options.stable_after_s else attempt + 1
-            await asyncio.sleep(backoff_delay(self.options, attempt, self._rng))
+            options = self.options  # backoff_s counts from 1; attempt 0 here: a stable connection lost
+            await asyncio.sleep(
+                backoff_s(attempt + 1, options.backoff_initial_s, options.backoff_max_s, self._rng.uniform)
+            )
 
     async def _connect_and_read(self) -> None:
         headers = {"Authorization": f"Bearer {self.options.token}"} if self.options.token else None

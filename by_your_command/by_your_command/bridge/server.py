@@ -22,11 +22,11 @@ from by_your_command.bridge.static_files import (
     is_websocket_upgrade,
 )
 from by_your_command.bridge.tcp_connections import abort_unopened, tracked_connection_class
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 log = logging.getLogger(__name__)
 # websockets logs request headers (Authorization: the token) at DEBUG: give it a logger that never does.
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 # Frames above the protocol limit get a status error; far larger ones close the connection (1009)
 # so a client cannot make us buffer arbitrary amounts before we can say no. websockets counts

@@ -11,9 +11,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from by_your_command.config_files.located_yaml import ConfigError
 from by_your_command.prompts.expansion import Annotation, MacroError
 from by_your_command.prompts.library import PromptLibrary, load_prompt_library
-from by_your_command.prompts.located_yaml import ConfigError
 
 EXIT_OK = 0
 EXIT_MACRO_ERROR = 1

@@ -8,8 +8,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from by_your_command.prompts.locate import find_config_file
-from by_your_command.prompts.located_yaml import ConfigError, Section, load_located_yaml
+from by_your_command.config_files.locate import find_config_file
+from by_your_command.config_files.located_yaml import ConfigError, Section, load_located_yaml
 
 COMMANDS_FILE = "commands.yaml"
 NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_-]*$")

@@ -23,7 +23,6 @@ import asyncio
 import contextlib
 import itertools
 import json
-import logging
 import secrets
 import shutil
 import ssl
@@ -59,9 +58,9 @@ from by_your_command.emulators.gemini_wire import (
     close_reason,
     parse_client_frame,
 )
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)  # websockets logs request headers (API keys) at DEBUG
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 METHOD_SUFFIX = ".GenerativeService.BidiGenerateContent"
 NO_KEY = (

@@ -19,7 +19,6 @@ gpt_live_session.py. Binds loopback by default; frames, connections and the reco
 from __future__ import annotations
 
 import json
-import logging
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from urllib.parse import urlsplit
@@ -36,9 +35,9 @@ from by_your_command.emulators.gpt_live_session import GptLiveSession, ScriptCur
 from by_your_command.emulators.gpt_live_wire import ClientEventError, serialise
 from by_your_command.emulators.openai_wire import parse_client_frame
 from by_your_command.emulators.recorded import EventRecord, LoopbackUrls, ReceivedEvent
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 PATH_SUFFIX = "/live/sessions"
 
@@ -105,7 +104,7 @@ class GptLiveEmulator(LoopbackUrls):
             max_size=self.limits.max_frame_bytes,
             compression=None,
             process_request=self._check_handshake,
-            logger=_QUIET_WEBSOCKET_LOG,  # websockets logs request headers (API keys) at DEBUG
+            logger=_QUIET_WEBSOCKET_LOG,
         )
         self.host, self.port = host, int(self._server.sockets[0].getsockname()[1])
 

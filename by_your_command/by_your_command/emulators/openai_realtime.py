@@ -18,7 +18,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import logging
 from dataclasses import dataclass, field
 from http import HTTPStatus
 from typing import Any
@@ -38,9 +37,9 @@ from by_your_command.emulators.openai_wire import (
     parse_client_frame,
 )
 from by_your_command.emulators.recorded import EventRecord, LoopbackUrls, ReceivedEvent
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 DEFAULT_MODEL = "gpt-realtime-2.1"
 BETA_CLOSE_CODE = 4000
@@ -90,7 +89,7 @@ class OpenAIRealtimeEmulator(LoopbackUrls):
             max_size=self.limits.max_frame_bytes,
             compression=None,
             process_request=self._check_handshake,
-            logger=_QUIET_WEBSOCKET_LOG,  # websockets logs request headers (API keys) at DEBUG
+            logger=_QUIET_WEBSOCKET_LOG,
         )
         self.host, self.port = host, int(self._server.sockets[0].getsockname()[1])
 

@@ -16,8 +16,8 @@ from typing import Any
 
 import yaml
 
+from by_your_command.config_files.locate import find_config_file
 from by_your_command.graph.model import ParamValue
-from by_your_command.prompts.locate import find_config_file
 
 # executable -> the dataclass its node declares parameters from (imported only when checking).
 NODE_CONFIG_TYPES: dict[str, str] = {

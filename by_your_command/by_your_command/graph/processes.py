@@ -17,9 +17,9 @@ from typing import Any
 
 import yaml
 
+from by_your_command.config_files.locate import find_config_file
 from by_your_command.graph.model import PACKAGE, AgentSpec, Graph, NodeSpec
 from by_your_command.graph.params import GraphError, Locate
-from by_your_command.prompts.locate import find_config_file
 
 
 @dataclass(frozen=True)

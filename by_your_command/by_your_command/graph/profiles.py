@@ -15,10 +15,10 @@ from enum import Enum
 from typing import Any
 
 from by_your_command.agents.app_config import FULL_DUPLEX
+from by_your_command.config_files.locate import find_config_file
 from by_your_command.graph.model import AgentSpec, Graph, NodeSpec
 from by_your_command.graph.options import GraphOptions
 from by_your_command.graph.params import GraphError, Locate, check_parameters, config_parameters
-from by_your_command.prompts.locate import find_config_file
 
 FILE_LEAD_SILENCE_MS = 1000  # a file source starts with this much silence: the VAD settles on it
 

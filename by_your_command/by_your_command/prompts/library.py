@@ -19,9 +19,9 @@ from pathlib import Path
 
 from by_your_command.commands.describe import vocabulary_macros
 from by_your_command.commands.vocabulary import load_vocabulary
+from by_your_command.config_files.locate import find_config_file
+from by_your_command.config_files.located_yaml import ConfigError, LocatedDict, Section, load_located_yaml
 from by_your_command.prompts.expansion import Annotation, MacroError, expand
-from by_your_command.prompts.locate import find_config_file
-from by_your_command.prompts.located_yaml import ConfigError, LocatedDict, Section, load_located_yaml
 from by_your_command.prompts.selection import Rule, SelectionRules, parse_condition
 
 PROMPTS_FILE = "prompts.yaml"

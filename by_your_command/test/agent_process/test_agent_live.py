@@ -37,8 +37,11 @@ from by_your_command.agents.events import (
     Usage,
 )
 from by_your_command.agents.provider import Provider, SessionSetup
-from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
-from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeConfig, OpenAIRealtimeProvider
+from by_your_command.agents.providers.gemini_live.provider import GeminiLiveConfig, GeminiLiveProvider
+from by_your_command.agents.providers.openai_realtime.provider import (
+    OpenAIRealtimeConfig,
+    OpenAIRealtimeProvider,
+)
 from by_your_command.audio.pcm import StreamResampler, read_wav, to_mono
 
 pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]

@@ -121,7 +121,7 @@ def test_billed_session_seconds_are_summed_into_the_sessions_usage() -> None:
 
 
 def delegation(words: str, call_id: str = "dlg_1") -> Script:
-    """A GPT-Live client delegation: no function, the user's words as the command (gpt_live_events)."""
+    """A GPT-Live client delegation: no function, the user's words as the command (gpt_live/events.py)."""
     return [
         (0.1, ToolCall("r1", call_id, TOOL_NAME, json.dumps({"command": words}))),
         (0.0, ResponseDone("r1", ResponseStatus.COMPLETED)),

@@ -11,7 +11,6 @@ import contextlib
 import json
 import logging
 import math
-import random
 from collections.abc import Coroutine
 from dataclasses import replace
 from http import HTTPStatus
@@ -38,7 +37,6 @@ from by_your_command.bridge.client import (
     Received,
     ServiceReply,
     TooManyCalls,
-    backoff_delay,
 )
 from by_your_command.bridge.client_inbox import Inbox, InboxLimits
 from by_your_command.bridge.config import BridgeParams, parse_allow_lists
@@ -282,14 +280,35 @@ def test_an_unexpected_error_in_the_connection_loop_does_not_stop_reconnecting(
     run(scenario())
 
 
-def test_backoff_grows_exponentially_to_its_cap_with_jitter() -> None:
-    options = ClientOptions(backoff_initial_s=0.1, backoff_max_s=5.0, backoff_jitter=0.5)
-    rng = random.Random(7)
-    for attempt in range(40):
-        nominal = min(5.0, 0.1 * 2**attempt)
-        draws = [backoff_delay(options, attempt, rng) for _ in range(20)]
-        assert all(nominal * 0.5 <= d <= nominal for d in draws)
-        assert len(set(draws)) > 1  # jittered: agents restarting together do not retry in lockstep
+@pytest.mark.parametrize(
+    ("stable_after_s", "attempts"),
+    [(5.0, [2, 3, 4]), (0.0, [1, 1, 1])],  # quick failures climb; a loss after a stable link starts over
+)
+def test_reconnect_waits_come_from_the_shared_backoff_with_the_options(
+    monkeypatch: pytest.MonkeyPatch, stable_after_s: float, attempts: list[int]
+) -> None:
+    """The delays themselves are net/backoff.py's (test/net/test_backoff.py); here: what it is asked."""
+    asked: list[tuple[int, float, float]] = []
+
+    def recorded(attempt: int, initial_s: float, max_s: float, uniform: Any) -> float:
+        asked.append((attempt, initial_s, max_s))
+        return 0.0
+
+    monkeypatch.setattr(client_module, "backoff_s", recorded)
+
+    async def scenario() -> None:
+        bridge = await scripted()
+        await bridge.stop()  # nothing listens: every connect fails at once
+        options = ClientOptions(backoff_initial_s=0.3, backoff_max_s=7.0, stable_after_s=stable_after_s)
+        client = BridgeClient(bridge.url, options)
+        await client.start()
+        try:
+            await eventually(lambda: len(asked) >= 3, what="three failed connects")
+        finally:
+            await client.close()
+
+    run(scenario())
+    assert asked[:3] == [(attempt, 0.3, 7.0) for attempt in attempts]
 
 
 # --- receive() reports a dead client -----------------------------------------------------------

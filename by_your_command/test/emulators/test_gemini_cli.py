@@ -13,7 +13,7 @@ import pytest
 
 from by_your_command.agents.events import AssistantTranscript, ProviderEvent, ResponseDone
 from by_your_command.agents.provider import SessionSetup
-from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
+from by_your_command.agents.providers.gemini_live.provider import GeminiLiveConfig, GeminiLiveProvider
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(90)]
 

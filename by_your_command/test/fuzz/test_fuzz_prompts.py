@@ -21,11 +21,11 @@ from hypothesis import strategies as st
 from yaml_fuzz import PLAIN, alias_bomb, documents, sometimes_wrong
 
 from by_your_command.commands.vocabulary import load_vocabulary
+from by_your_command.config_files.locate import ConfigFileNotFound
+from by_your_command.config_files.located_yaml import MAX_FILE_BYTES, ConfigError
 from by_your_command.prompts import expansion
 from by_your_command.prompts.expansion import MAX_EXPANSION_CHARS, MacroError, MacroSizeError, expand
 from by_your_command.prompts.library import PromptFileError, load_prompt_library
-from by_your_command.prompts.locate import ConfigFileNotFound
-from by_your_command.prompts.located_yaml import MAX_FILE_BYTES, ConfigError
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(600)]
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import yaml
 
-from by_your_command.prompts.locate import find_config_file
+from by_your_command.config_files.locate import find_config_file
 
 # Distinctive values: seeing them in a node's parameters proves they came from the config files.
 VAD_SECTION = {"threshold": 0.61, "min_silence_duration_ms": 300, "wake_phrases": ["hey robot"]}

@@ -7,10 +7,10 @@ from pathlib import Path
 import pytest
 from live_bridge import CONFIG_DIR
 
-from by_your_command.agents.providers.gemini_live import GeminiLiveProvider
-from by_your_command.agents.providers.gpt_live import GptLiveProvider
-from by_your_command.agents.providers.offline import OfflineProvider
-from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeProvider
+from by_your_command.agents.providers.gemini_live.provider import GeminiLiveProvider
+from by_your_command.agents.providers.gpt_live.provider import GptLiveProvider
+from by_your_command.agents.providers.local.provider import OfflineProvider
+from by_your_command.agents.providers.openai_realtime.provider import OpenAIRealtimeProvider
 from by_your_command.monitor.config import MonitorConfigError, load_monitor_config, parse_monitor_config
 
 pytestmark = pytest.mark.unit

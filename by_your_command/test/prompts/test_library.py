@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
+from by_your_command.config_files.locate import ConfigFileNotFound, candidate_paths, find_config_file
+from by_your_command.config_files.located_yaml import ConfigError
 from by_your_command.prompts.library import PromptFileError, load_prompt_library
-from by_your_command.prompts.locate import ConfigFileNotFound, candidate_paths, find_config_file
-from by_your_command.prompts.located_yaml import ConfigError
 
 SHIPPED_PROMPTS = [
     "conversational_assistant",

@@ -23,8 +23,8 @@ from by_your_command.agents.events import (
 )
 from by_your_command.agents.inputs import PromptText, UtteranceChunk
 from by_your_command.agents.provider import SessionSetup, ToolResult
-from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
-from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
+from by_your_command.agents.providers.gemini_live.provider import GeminiLiveConfig, GeminiLiveProvider
+from by_your_command.agents.providers.gemini_live.resumption import ResumptionHandles
 from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL
 from by_your_command.agents.runtime import AgentRuntime
 from by_your_command.emulators.gemini_live import GeminiLiveEmulator, start

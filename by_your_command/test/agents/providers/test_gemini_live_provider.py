@@ -41,8 +41,8 @@ from by_your_command.agents.provider import (
     ToolResult,
     ToolSpec,
 )
-from by_your_command.agents.providers.gemini_live import GeminiLiveConfig, GeminiLiveProvider
-from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
+from by_your_command.agents.providers.gemini_live.provider import GeminiLiveConfig, GeminiLiveProvider
+from by_your_command.agents.providers.gemini_live.resumption import ResumptionHandles
 from by_your_command.emulators.gemini_live import GeminiLiveEmulator, start
 from by_your_command.emulators.gemini_script import CallTool, Say, Script, Turn
 
@@ -591,7 +591,7 @@ def test_config_is_validated() -> None:
 
 
 def test_tool_schemas_keep_only_the_keywords_gemini_documents() -> None:
-    from by_your_command.agents.providers.gemini_live import _gemini_schema
+    from by_your_command.agents.providers.gemini_live.provider import _gemini_schema
 
     # "contentEncoding" as a property is a field's name (kept); inside a field, a keyword (dropped)
     schema = {

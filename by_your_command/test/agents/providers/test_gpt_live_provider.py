@@ -55,16 +55,16 @@ from by_your_command.agents.provider import (
     SessionSetup,
     ToolResult,
 )
-from by_your_command.agents.providers.gpt_live import GptLiveProvider
-from by_your_command.agents.providers.gpt_live_config import GptLiveConfig
-from by_your_command.agents.providers.gpt_live_errors import handshake_error, provider_error
-from by_your_command.agents.providers.gpt_live_events import (
+from by_your_command.agents.providers.gpt_live.config import GptLiveConfig
+from by_your_command.agents.providers.gpt_live.errors import handshake_error, provider_error
+from by_your_command.agents.providers.gpt_live.events import (
     LiveTranslator,
     UnknownEvent,
     UnreadableEvent,
     parse_server_event,
 )
-from by_your_command.agents.providers.gpt_live_input import InputClock, SilencePlan
+from by_your_command.agents.providers.gpt_live.input import InputClock, SilencePlan
+from by_your_command.agents.providers.gpt_live.provider import GptLiveProvider
 from by_your_command.emulators.gpt_live import GptLiveEmulator, start
 from by_your_command.emulators.gpt_live_script import Delegate, Say, Script, Turn
 

@@ -38,10 +38,10 @@ from by_your_command.agents.events import (
 )
 from by_your_command.agents.inputs import UtteranceChunk
 from by_your_command.agents.provider import ProviderClosed, SessionSetup, ToolResult, ToolSpec
-from by_your_command.agents.providers import offline_engine
-from by_your_command.agents.providers.offline import OfflineProvider
-from by_your_command.agents.providers.offline_config import OfflineConfig
-from by_your_command.agents.providers.offline_engine import LocalEngine
+from by_your_command.agents.providers.local import engine as local_engine
+from by_your_command.agents.providers.local.config import OfflineConfig
+from by_your_command.agents.providers.local.engine import LocalEngine
+from by_your_command.agents.providers.local.provider import OfflineProvider
 from by_your_command.agents.robot_calls import call_result
 from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL, TOOL_NAME, result_json
 from by_your_command.agents.runtime import LATE_RESULT_NOTE, AgentRuntime
@@ -336,7 +336,7 @@ def test_the_not_heard_reply_is_made_when_the_engine_loads(
     engine: LocalEngine, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Said to every chat line, the not-heard reply costs no synthesis when it is needed."""
-    monkeypatch.setattr(offline_engine, "OfflineRecognizer", lambda config: engine._recognizer)
+    monkeypatch.setattr(local_engine, "OfflineRecognizer", lambda config: engine._recognizer)
     synthesized: list[str] = []
     synthesize = Speaker.say
 

@@ -6,8 +6,8 @@ import pytest
 from openai.types.realtime import RealtimeResponseUsage
 
 from by_your_command.agents.events import ProviderError, Usage
-from by_your_command.agents.providers.openai_errors import handshake_error, provider_error
-from by_your_command.agents.providers.openai_events import usage_from
+from by_your_command.agents.providers.openai_realtime.errors import handshake_error, provider_error
+from by_your_command.agents.providers.openai_realtime.events import usage_from
 
 pytestmark = pytest.mark.unit
 

@@ -36,7 +36,10 @@ from by_your_command.agents.provider import (
     ToolResult,
     ToolSpec,
 )
-from by_your_command.agents.providers.openai_realtime import OpenAIRealtimeConfig, OpenAIRealtimeProvider
+from by_your_command.agents.providers.openai_realtime.provider import (
+    OpenAIRealtimeConfig,
+    OpenAIRealtimeProvider,
+)
 from by_your_command.emulators.openai_realtime import OpenAIRealtimeEmulator, start
 from by_your_command.emulators.openai_script import CallTool, Say, Script, Silence, Turn
 

@@ -43,7 +43,7 @@ from by_your_command.agents.events import (
     Usage,
     UserTranscript,
 )
-from by_your_command.agents.providers.openai_errors import provider_error
+from by_your_command.agents.providers.openai_realtime.errors import provider_error
 
 SAMPLE_RATE: Final = 24_000  # the Realtime API's PCM, in and out
 BYTES_PER_MS = SAMPLE_RATE * 2 // 1000

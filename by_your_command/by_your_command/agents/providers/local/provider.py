@@ -11,7 +11,7 @@ verdict; the reply to that verdict is spoken with espeak-ng: an acknowledgement 
 The robot's other tools are heard by their declared phrases (ToolSpec.spoken: "go to the kitchen"
 -> go_to {"place": "kitchen"}), which the recognizer takes as forms judged like commands, so chat
 with a tool's words in it is still not caught. A phrase heard becomes that tool's call; its result
-(offline_replies.py) is answered when it comes, however many turns later for an action: "Done.",
+(replies.py) is answered when it comes, however many turns later for an action: "Done.",
 the service's own message, or the failure said plainly as a refusal, never as a success.
 
 The runtime's session model is kept: a "session" is the loaded engine, which the factory shares
@@ -51,15 +51,15 @@ from by_your_command.agents.provider import (
     ToolSpec,
 )
 from by_your_command.agents.providers.event_stream import EventStream
-from by_your_command.agents.providers.offline_config import OfflineConfig
-from by_your_command.agents.providers.offline_engine import Engine, LocalEngine
-from by_your_command.agents.providers.offline_replies import (
+from by_your_command.agents.providers.local.config import OfflineConfig
+from by_your_command.agents.providers.local.engine import Engine, LocalEngine
+from by_your_command.agents.providers.local.replies import (
     late_result,
     parse_tool_result,
     refusal,
     success,
 )
-from by_your_command.agents.providers.offline_text import rejected
+from by_your_command.agents.providers.local.text import rejected
 from by_your_command.agents.robot_tool import TOOL_NAME
 from by_your_command.offline.recognizer import Recognition
 from by_your_command.offline.replies import acknowledgement, answer

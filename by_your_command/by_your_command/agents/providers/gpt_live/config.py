@@ -26,7 +26,7 @@ class GptLiveConfig:
     # The model streams its voice at about real time: once the user spoke over it, output quiet
     # this long means it yielded, and the player cuts what it still holds of the reply.
     yield_gap_ms: int = 250
-    delegation_tool: str = TOOL_NAME  # the tool a client delegation calls (see gpt_live_events)
+    delegation_tool: str = TOOL_NAME  # the tool a client delegation calls (see events.py)
     acknowledgement_delay_ms: int | None = None  # spoken "one moment" after a delegation; None: server's
     safety_identifier: str = ""  # a stable id of the end user for OpenAI's abuse monitoring; "" none
     # session.start input: at most 128 messages and about 8,192 tokens (documented).

@@ -65,7 +65,7 @@ from by_your_command.agents.events import (
     UsageReport,
     UserTranscript,
 )
-from by_your_command.agents.providers.gpt_live_errors import provider_error
+from by_your_command.agents.providers.gpt_live.errors import provider_error
 
 MAX_COMMAND_CHARS: Final = 200  # robot_tool.parse_command's limit: one line, 200 characters
 MAX_HEARD_CHARS: Final = 4000  # user transcript kept for one utterance (bounded memory)

@@ -7,7 +7,7 @@ auth errors get our own message and the server's text is never passed on.
 from __future__ import annotations
 
 from by_your_command.agents.events import ProviderError
-from by_your_command.agents.providers.openai_errors import DEFAULT_RETRY_AFTER_S, retry_after_from
+from by_your_command.agents.providers.openai_realtime.errors import DEFAULT_RETRY_AFTER_S, retry_after_from
 
 # Retrying cannot fix these: a person has to change the key, the model name or the endpoint.
 FATAL_CODES = frozenset(

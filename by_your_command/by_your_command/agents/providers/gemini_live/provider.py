@@ -46,14 +46,15 @@ from by_your_command.agents.provider import (
 )
 from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.failures import closing_on_failure, handshake_refusal
-from by_your_command.agents.providers.gemini_errors import (
+from by_your_command.agents.providers.gemini_live.errors import (
     MISSING_KEY_MESSAGE,
     handshake_error,
     session_closed,
     setup_error,
 )
-from by_your_command.agents.providers.gemini_events import EventTranslator
-from by_your_command.agents.providers.gemini_resumption import ResumptionHandles
+from by_your_command.agents.providers.gemini_live.events import EventTranslator
+from by_your_command.agents.providers.gemini_live.resumption import ResumptionHandles
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +63,7 @@ INPUT_RATE = 16_000  # Gemini Live's native input rate
 INPUT_MIME = f"audio/pcm;rate={INPUT_RATE}"
 DEFAULT_API_VERSION = "v1beta"  # the Live API's documented version (google-genai 3.x defaults to v1)
 MAX_IMAGE_BYTES = 7 * 1024 * 1024
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)  # websockets logs handshake headers (the key) at DEBUG
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 _MEDIA_RESOLUTION = {
     "low": types.MediaResolution.MEDIA_RESOLUTION_LOW,
     "medium": types.MediaResolution.MEDIA_RESOLUTION_MEDIUM,

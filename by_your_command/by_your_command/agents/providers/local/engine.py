@@ -24,8 +24,8 @@ from collections import Counter, OrderedDict
 from collections.abc import Sequence
 from typing import Protocol, TypeVar
 
-from by_your_command.agents.providers.offline_config import OfflineConfig
-from by_your_command.agents.providers.offline_text import TextMatcher
+from by_your_command.agents.providers.local.config import OfflineConfig
+from by_your_command.agents.providers.local.text import TextMatcher
 from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, RecognizerConfig
 from by_your_command.offline.speaker import Speaker
 from by_your_command.offline.tool_phrases import ToolPhrase

@@ -4,7 +4,7 @@ GPT-Live is full duplex: one audio stream each way, and the model decides when t
 delegate work and when to yield to the user (`duplex`: the runtime does not judge barge-ins, it
 cuts the player when the model yields). So:
 
-- the input is one stream in real time (gpt_live_input.InputClock): each utterance's audio as it
+- the input is one stream in real time (input.InputClock): each utterance's audio as it
   comes, and silence in between, appended every `input_tick_ms`; `end_of_turn` only marks the
   utterance's end (there is no commit or response.create: the model hears the user stop).
 - replies are made up by `LiveTranslator` (no response ids, no reply end on the wire); a reply the
@@ -12,7 +12,7 @@ cuts the player when the model yields). So:
 - `interrupt` cannot cancel: the model hears the user over the same stream and stops by itself
   (or talks on). It marks the reply cut, so its audio is dropped and its end says so.
 - robot tools: client delegation (`session.delegation.created`) names no function, so it is a
-  `ToolCall` of `delegation_tool` with the user's words as the command (gpt_live_events). The
+  `ToolCall` of `delegation_tool` with the user's words as the command (events.py). The
   result goes back as `session.commentary.append` for that delegation (the model speaks it),
   progress as `session.thinking.append` (silent).
 - `send_text` and `add_context` are `session.instructions.append`: client delegation has no user
@@ -58,22 +58,22 @@ from by_your_command.agents.provider import (
 )
 from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.failures import closing_on_failure, handshake_refusal
-from by_your_command.agents.providers.gpt_live_config import GptLiveConfig
-from by_your_command.agents.providers.gpt_live_errors import handshake_error, start_refusal
-from by_your_command.agents.providers.gpt_live_events import (
+from by_your_command.agents.providers.gpt_live.config import GptLiveConfig
+from by_your_command.agents.providers.gpt_live.errors import handshake_error, start_refusal
+from by_your_command.agents.providers.gpt_live.events import (
     LiveTranslator,
     UnreadableEvent,
     parse_server_event,
 )
-from by_your_command.agents.providers.gpt_live_input import InputClock
+from by_your_command.agents.providers.gpt_live.input import InputClock
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 log = logging.getLogger(__name__)
 
 _SESSION = "the GPT-Live session"  # as errors name it
 MAX_APPEND_BYTES = 1024 * 1024  # one input_audio.append: longer audio goes in several
 MAX_SERVER_EVENT_BYTES = 16 * 1024 * 1024  # bounded memory: server events are small deltas
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 
 class GptLiveProvider:
@@ -141,7 +141,6 @@ class GptLiveProvider:
         self._client = client
         options = cast(
             WebSocketConnectionOptions,
-            # websockets logs handshake headers (the key) at DEBUG: give it a logger that never does.
             {"logger": _QUIET_WEBSOCKET_LOG, "max_size": MAX_SERVER_EVENT_BYTES, "compression": None},
         )
         # No on_reconnecting: the SDK does not reconnect by itself; the runtime opens a new session.

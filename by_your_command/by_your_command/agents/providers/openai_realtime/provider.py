@@ -45,8 +45,9 @@ from by_your_command.agents.provider import (
 )
 from by_your_command.agents.providers.event_stream import EventStream
 from by_your_command.agents.providers.failures import closing_on_failure, handshake_refusal
-from by_your_command.agents.providers.openai_errors import handshake_error, provider_error
-from by_your_command.agents.providers.openai_events import BYTES_PER_MS, SAMPLE_RATE, EventTranslator
+from by_your_command.agents.providers.openai_realtime.errors import handshake_error, provider_error
+from by_your_command.agents.providers.openai_realtime.events import BYTES_PER_MS, SAMPLE_RATE, EventTranslator
+from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +56,7 @@ MIN_COMMIT_MS = 100  # the server refuses shorter commits (input_audio_buffer_co
 MAX_SESSION_S = 3600.0  # GA sessions end after 60 minutes (session_expired)
 MAX_IMAGE_BYTES = 10 * 1024 * 1024  # an event carries at most 15 MiB, base64 inflates by 4/3
 MAX_SERVER_EVENT_BYTES = 16 * 1024 * 1024  # bounded memory: server events are small deltas
-_QUIET_WEBSOCKET_LOG = logging.getLogger(__name__ + ".websocket")
-_QUIET_WEBSOCKET_LOG.setLevel(logging.INFO)
+_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,6 @@ class OpenAIRealtimeProvider:
         self._client = client
         options = cast(
             WebSocketConnectionOptions,
-            # websockets logs handshake headers (the key) at DEBUG: give it a logger that never does.
             # `logger` is a websockets.connect option the SDK passes through but does not declare.
             {"logger": _QUIET_WEBSOCKET_LOG, "max_size": MAX_SERVER_EVENT_BYTES, "compression": None},
         )
