@@ -419,6 +419,8 @@ def bench_double_talk(held_out_too: bool = True) -> list[tuple[str, str, str]]:
             erles: list[float] = []
             robot_s = 0.0
             for index, (talk, alone, single) in enumerate(talks):
+                scene_delays: list[float | None] = []
+                scene_correlations: list[float] = []
                 heard = listen(talk, config, model)
                 key = (config.aec_engine, index)
                 if key not in quiet_runs:
@@ -432,17 +434,31 @@ def bench_double_talk(held_out_too: bool = True) -> list[tuple[str, str, str]]:
                         continue
                     total += 1
                     delay = first_start(heard.starts, begin, end)
+                    scene_delays.append(delay)
                     detected += delay is not None
                     delays += [delay] if delay is not None else []
                     baseline = first_start(quiet.starts, begin, end)
                     quiet_delays += [baseline] if baseline is not None else []
                     span = slice(int(begin * RATE), int(min(end, robot_end) * RATE))
-                    correlations.append(pearson(heard.output[span], quiet.output[span]))
+                    scene_correlations.append(pearson(heard.output[span], quiet.output[span]))
+                correlations += scene_correlations
                 robot = listen(single, config, model)
                 lo, hi = int(CONVERGED_FROM_S * RATE), int(robot_end * RATE)
                 mic = single.mic[lo:hi]
                 erles.append(energy_db(mic) - energy_db(np.rint(robot.output[lo:hi]).astype(np.int16)))
                 false_starts += len(robot.starts)
+                scene = chosen[index]
+                figure(  # per room and echo level: where a set's figures are lost
+                    figure="double_talk_scene",
+                    set=label,
+                    config=name,
+                    room=scene.room_name,
+                    echo_dbfs=scene.echo_dbfs,
+                    onset_ms=[None if d is None else round(d) for d in scene_delays],
+                    correlation=[round(c, 3) for c in scene_correlations],
+                    single_talk_erle_db=round(erles[-1], 1),
+                    false_starts=len(robot.starts),
+                )
                 robot_s += robot_end - 0.5
             per_minute = false_starts / robot_s * 60
             figure(

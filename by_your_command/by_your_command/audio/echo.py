@@ -63,13 +63,14 @@ class EchoConfig:
         metadata={"help": "aec: linear (long adaptive filter, keeps double talk) | webrtc (AEC3)"},
     )
     aec_filter_ms: int = field(
-        default=640,
+        default=800,
         metadata={
             "help": "aec linear: echo path span (speaker-to-mic delay + room reverb) the filter models"
         },
     )
     aec_step: float = field(
-        default=0.5, metadata={"help": "aec linear: adaptation step (0-1]: faster convergence vs less noise"}
+        default=1.0,
+        metadata={"help": "aec linear: share of the Kalman step taken (0-1]: faster vs steadier"},
     )
     aec_double_talk_margin_db: float = field(
         default=6.0,
