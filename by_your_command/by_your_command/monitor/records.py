@@ -32,6 +32,7 @@ class Tokens:
     cached_input: int = 0
     output_text: int = 0
     output_audio: int = 0
+    session_s: float = 0.0  # a per-second provider's own count of the billed session time
 
     @property
     def input(self) -> int:
@@ -49,6 +50,7 @@ class Tokens:
             self.cached_input + other.cached_input,
             self.output_text + other.output_text,
             self.output_audio + other.output_audio,
+            self.session_s + other.session_s,
         )
 
 
@@ -268,10 +270,11 @@ def _millis(data: dict[str, Any], key: str, optional: bool) -> float | None:
 def _tokens(usage: Any) -> Tokens:
     if not isinstance(usage, dict):
         raise BadRecord("usage: expected an object")
-    values = {}
-    for key, name in _USAGE_FIELDS.items():
-        try:
+    values: dict[str, Any] = {}
+    try:
+        for key, name in _USAGE_FIELDS.items():
             values[name] = _count(usage, key) if key in usage else 0
-        except BadRecord as error:
-            raise BadRecord(f"usage.{error}") from None
+        values["session_s"] = _number(usage, "session_s") if "session_s" in usage else 0.0
+    except BadRecord as error:
+        raise BadRecord(f"usage.{error}") from None
     return Tokens(**values)

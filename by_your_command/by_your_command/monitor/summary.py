@@ -90,7 +90,9 @@ class _Agent:
     open_session: int | None = None
     open_tokens: Tokens = field(default_factory=Tokens)
     closed_tokens: Tokens = field(default_factory=Tokens)
-    billed_s: float = 0.0
+    billed_s: float = 0.0  # our count: connect → close of each session
+    provider_s: float = 0.0  # the provider's own count, from the sessions that report one
+    priced_s: float = 0.0  # per session, the provider's count where it reports one, else ours
     sessions: int = 0
     sessions_unreported: int = 0  # a newer session began before this one's record arrived
     last_close_reason: str = ""
@@ -137,6 +139,8 @@ class _Agent:
             self.open_session, self.open_tokens = None, Tokens()  # the session's own total replaces them
         self.closed_tokens = self.closed_tokens + record.tokens
         self.billed_s += record.billed_s
+        self.provider_s += record.tokens.session_s
+        self.priced_s += record.tokens.session_s or record.billed_s  # what the vendor bills, when it says
         self.sessions += 1
         self.last_close_reason = record.close_reason
         if self.open_session is None:
@@ -252,11 +256,12 @@ class AgentSummary:
                     "sessions": agent.sessions,
                     "sessions_unreported": agent.sessions_unreported,
                     "billed_s": round(agent.billed_s, 3),
+                    "provider_s": round(agent.provider_s, 3),
                     "turns": agent.turns,
                     "outcomes": dict(sorted(agent.outcomes.items())),
                     "input_tokens": tokens.input,
                     "output_tokens": tokens.output,
-                    "cost": self._cost(agent.provider, tokens, agent.billed_s),
+                    "cost": self._cost(agent.provider, tokens, agent.priced_s),
                     "last_first_audio_ms": agent.last_first_audio_ms,
                     "median_first_audio_ms": _median(agent.first_audio),
                     "last_reply_ms": agent.last_reply_ms,
@@ -270,7 +275,7 @@ class AgentSummary:
         for provider, members in sorted(by_provider.items()):
             tokens = sum((a.tokens for a in members), Tokens())
             billed = sum(a.billed_s for a in members)
-            cost = self._cost(provider, tokens, billed)
+            cost = self._cost(provider, tokens, sum(a.priced_s for a in members))
             if cost is None:
                 unpriced.append(provider or "(unnamed)")
             else:
@@ -280,6 +285,7 @@ class AgentSummary:
                     "provider": provider,
                     "sessions": sum(a.sessions for a in members),
                     "billed_s": round(billed, 3),
+                    "provider_s": round(sum(a.provider_s for a in members), 3),
                     "input_tokens": tokens.input,
                     "output_tokens": tokens.output,
                     "cost": cost,
@@ -331,12 +337,17 @@ class AgentSummary:
             values.update(_call_values(data))
             message = (
                 f"{agent.state}; {agent.turns} turn(s), {agent.sessions} session(s), "
-                f"{agent.billed_s:.1f} s billed, est. {_money(data['cost'])} {currency}"
+                f"{agent.billed_s:.1f} s billed{_provider_count(agent.provider_s)}, "
+                f"est. {_money(data['cost'])} {currency}"
             )
             if data["active_calls"]:
                 message += f"; {len(data['active_calls'])} robot action(s) running"
             reports.append(StatusReport(WARN if failed else OK, f"agent {agent.agent_id}", message, values))
         return reports
+
+
+def _provider_count(seconds: float) -> str:
+    return f" (provider {seconds:.1f} s)" if seconds > 0 else ""
 
 
 _LISTED = ("outcomes", "active_calls", "recent_calls", "call_outcomes")  # not one value each

@@ -158,6 +158,10 @@ CASES: list[tuple[str, str, bool]] = [
     ("usage as a number", with_fields(SESSION, usage=1.5), False),
     ("a fractional token count", with_fields(TURN, usage={"input_audio_tokens": 1.5}), False),
     ("a negative token count", with_fields(TURN, usage={"output_text_tokens": -1}), False),
+    ("a provider's billed seconds", with_fields(SESSION, usage={"session_s": 61.25}), True),
+    ("billed seconds that are text", with_fields(SESSION, usage={"session_s": "61"}), False),
+    ("negative billed seconds", with_fields(SESSION, usage={"session_s": -1}), False),
+    ("absurd billed seconds", with_fields(SESSION, usage={"session_s": 1e300}), False),
     ("unknown usage keys are ignored", with_fields(TURN, usage={"input_tokens": "x"}), True),
     ("an opened session's usage is not read", with_fields(OPENED, usage="junk"), True),
     (

@@ -118,6 +118,11 @@ def test_a_session_shows_as_soon_as_it_opens_before_any_turn() -> None:
             '{"record": "turn", "agent_id": "a", "session": 1, "usage": {"output_audio_tokens": "many"}}',
             "usage.output_audio_tokens",
         ),
+        (
+            '{"record": "session", "agent_id": "a", "session": 1, "billed_s": 1, "turns": 1,'
+            ' "close_reason": "", "usage": {"session_s": -2}}',
+            "usage.session_s",
+        ),
         ("[" * 60_000, "not JSON"),  # nesting deeper than the parser recurses
         ('{"x": "' + "y" * 70_000 + '"}', "characters"),
     ],
@@ -146,6 +151,7 @@ def test_tokens_are_counted_once_from_turns_then_from_the_session_record() -> No
             "provider": "openai_realtime",
             "sessions": 1,
             "billed_s": 12.5,
+            "provider_s": 0.0,
             "input_tokens": 160,
             "output_tokens": 300,
             "cost": agent["cost"],
@@ -239,6 +245,29 @@ def test_cost_prices_tokens_per_kind_cached_input_and_session_minutes() -> None:
     assert estimate_cost(tokens, 90.0, Prices()) == 0.0
     with pytest.raises(ValueError, match="input_audio"):
         Prices(input_audio=-1.0)
+
+
+def test_a_per_second_provider_is_priced_by_its_own_count_when_it_reports_one() -> None:
+    """GPT-Live bills open session time and says how much (usage.session_s): that count is priced;
+    a session that reports none is priced by our connect → close seconds."""
+    summary = AgentSummary({"gpt_live": Prices(session_minute=0.06)})
+
+    def session(number: int, billed_s: float, server_s: float) -> str:
+        usage = Usage(session_s=server_s)
+        return json.dumps(
+            SessionMetrics("robot", "c1", number, billed_s, 1, "pause", usage, "gpt_live").as_dict()
+        )
+
+    summary.feed(session(1, billed_s=61.0, server_s=60.0))
+    summary.feed(session(2, billed_s=30.0, server_s=0.0))  # reported none
+    [agent] = summary.snapshot()["agents"]
+    assert (agent["billed_s"], agent["provider_s"]) == (91.0, 60.0)
+    assert agent["cost"] == pytest.approx(0.06 * (60.0 + 30.0) / 60)
+    [provider] = summary.snapshot()["providers"]
+    assert provider["provider_s"] == 60.0 and provider["cost"] == pytest.approx(agent["cost"])
+    [_, report] = summary.reports()
+    assert "91.0 s billed (provider 60.0 s)" in report.message
+    assert report.values["provider_s"] == "60.0"
 
 
 class Clock:

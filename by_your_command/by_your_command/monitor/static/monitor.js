@@ -123,6 +123,12 @@
     row.appendChild(td);
   }
 
+  // Our billed seconds, and the provider's own count when it reports one (it is what is priced).
+  function seconds(billed, provider) {
+    if (!isNumber(billed)) return "?";
+    return isNumber(provider) && provider > 0 ? `${billed.toFixed(1)} (provider ${provider.toFixed(1)})` : billed.toFixed(1);
+  }
+
   function money(value, currency) {
     return isNumber(value) ? `${value.toFixed(4)} ${currency}` : "no price";
   }
@@ -219,7 +225,8 @@
       } else if (record.record === "tool_call") {
         callLine(agent, record);
       } else {
-        addLine("session", `${agent}: session closed after ${record.billed_s.toFixed(1)} s billed (${text(record.close_reason, 120)})`);
+        const counted = record.tokens.session_s > 0 ? `, provider ${record.tokens.session_s.toFixed(1)} s` : "";
+        addLine("session", `${agent}: session closed after ${record.billed_s.toFixed(1)} s billed${counted} (${text(record.close_reason, 120)})`);
       }
     },
     playback_status(msg) {
@@ -389,7 +396,7 @@
       cell(row, stateLabel, `state-${stateName.replace(/[^a-z]+/g, "-")}`);
       cell(row, String(Number.isInteger(agent.turns) ? agent.turns : "?"));
       cell(row, String(Number.isInteger(agent.sessions) ? agent.sessions : "?"));
-      cell(row, isNumber(agent.billed_s) ? agent.billed_s.toFixed(1) : "?");
+      cell(row, seconds(agent.billed_s, agent.provider_s));
       cell(row, `${agent.input_tokens ?? "?"} / ${agent.output_tokens ?? "?"}`);
       cell(row, money(agent.cost, currency));
       cell(row, `${ms(agent.last_first_audio_ms)} (${ms(agent.median_first_audio_ms)})`);
@@ -401,7 +408,7 @@
       const row = providers.insertRow();
       cell(row, text(provider.provider, 40) || "?");
       cell(row, String(Number.isInteger(provider.sessions) ? provider.sessions : "?"));
-      cell(row, isNumber(provider.billed_s) ? provider.billed_s.toFixed(1) : "?");
+      cell(row, seconds(provider.billed_s, provider.provider_s));
       cell(row, `${provider.input_tokens ?? "?"} / ${provider.output_tokens ?? "?"}`);
       cell(row, money(provider.cost, currency));
     }

@@ -150,12 +150,13 @@ window.bycRecords = (() => {
       throw new BadRecord("usage: expected an object");
     }
     const values = {};
-    for (const [key, field] of Object.entries(USAGE_FIELDS)) {
-      try {
+    try {
+      for (const [key, field] of Object.entries(USAGE_FIELDS)) {
         values[field] = has(usage, key) ? count(usage, key) : 0;
-      } catch (error) {
-        throw new BadRecord(`usage.${error.message}`);
       }
+      values.session_s = has(usage, "session_s") ? number(usage, "session_s") : 0; // a per-second provider's count
+    } catch (error) {
+      throw new BadRecord(`usage.${error.message}`);
     }
     return values;
   }
