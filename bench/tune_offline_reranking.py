@@ -228,8 +228,8 @@ def with_rerank(weights: RerankWeights, margin: float) -> Acceptance:
     return dataclasses.replace(
         shipped,
         rerank=weights,
-        clean=dataclasses.replace(shipped.clean, margin=margin),
-        noisy=dataclasses.replace(shipped.noisy, margin=margin),
+        clean=dataclasses.replace(shipped.clean, alignment_path_min_margin=margin),
+        noisy=dataclasses.replace(shipped.noisy, alignment_path_min_margin=margin),
     )
 
 
@@ -245,7 +245,9 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--records", type=Path, help="JSON records: read if present, else written")
-    parser.add_argument("--margin", type=float, default=AcceptLimits().margin, help="alignment path margin")
+    parser.add_argument(
+        "--margin", type=float, default=AcceptLimits().alignment_path_min_margin, help="alignment path margin"
+    )
     parser.add_argument(
         "--chat-draws", type=int, default=3, help="more noise draws of each chat line (when decoding)"
     )

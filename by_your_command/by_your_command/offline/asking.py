@@ -10,12 +10,12 @@ wrote can: a command says its verb bare, with no subject before it, no negation 
 unless the form holds the word ("can you turn left").
 
 Each word list is what Moonshine does not write for a command said plainly (measured on the
-benchmark's commands, docs/offline.md): not "when", "after", "before" (espeak's "backward" is
-"back when" to it, "look up to the right" "look after the ride"), not "not" ("attention ahead" in
-noise: "a fan should not add"); a subject only before a verb ("I'm right." is "pan right"
-misheard), and in noise "you" or "we" only before a verb with an ending (noise before a command
-makes it start "You look out right."). A past tense before a form word that starts with t or d
-is no evidence either: "reach to the left" is "reached on the left" to it.
+benchmark's commands, bench/offline_experiments.md): not "when", "after", "before" (espeak's
+"backward" is "back when" to it, "look up to the right" "look after the ride"), not "not"
+("attention ahead" in noise: "a fan should not add"); a subject only before a verb ("I'm
+right." is "pan right" misheard), and in noise "you" or "we" only before a verb with an ending
+(noise before a command makes it start "You look out right."). A past tense before a form word
+that starts with t or d is no evidence either: "reach to the left" is "reached on the left" to it.
 """
 
 from __future__ import annotations

@@ -18,9 +18,9 @@ The "anything to learn from" check compares the loudest frames, not the typical 
 command at 15 dB SNR most frames are pre-roll, pauses and weak sounds, so the median frame is
 barely above the noise (an earlier median check skipped almost every noisy utterance).
 
-Measured (tuning voices, white noise at 15 dB SNR, 223 commands; docs/offline.md): Moonshine's
-best form was the right meaning for 77.1 % with this filter, 74.0 % with a plain Wiener filter,
-72.2 % unfiltered; clean speech unchanged.
+Measured (tuning voices, white noise at 15 dB SNR, 223 commands; bench/offline_experiments.md):
+Moonshine's best form was the right meaning for 77.1 % with this filter, 74.0 % with a plain
+Wiener filter, 72.2 % unfiltered; clean speech unchanged.
 """
 
 from __future__ import annotations

@@ -47,7 +47,8 @@ PACKAGE = "moonshine-cpp"
 MODEL_FILES = ("encoder_model.ort", "decoder_model_merged.ort", "tokenizer.bin")
 LAYERS, HEADS, HEAD_DIM = 8, 8, 52  # Moonshine base
 # A transcript may end with one of these instead of END. The comma: speech whose pitch does not
-# fall at the end (flite's voices, a speaker listing) is written "Pan full left," (docs/offline.md).
+# fall at the end (flite's voices, a speaker listing) is written "Pan full left,"
+# (bench/offline_experiments.md).
 FINAL_MARKS = (".", "?", "!", ",")
 
 FloatArray = npt.NDArray[np.float32]

@@ -16,7 +16,7 @@ the command vocabulary (language_model.py): a JSGF grammar of the spoken forms, 
 but forces every utterance into its nearest form, and a filler model where the forms compete with a
 loop of everyday words. Only a hypothesis that is exactly one spoken form in the grammar AND means
 the same in the filler model is accepted; chat decodes as filler words and is rejected (see
-docs/offline.md for the measurements behind this choice).
+bench/offline_experiments.md for the measurements behind this choice).
 
 Input is untrusted: odd byte counts, unsupported rates, too short or too long utterances and
 silence are rejected before decoding (a counted reason, never an exception), which also bounds
@@ -162,9 +162,9 @@ _FUNCTION_WORDS = frozenset(
 )
 
 
-def _limit(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
-    """A regret limit, lowered to phrase_regret for the short wake/sleep/stop phrases."""
-    return min(regret, limits.phrase_regret) if kind is RecognitionKind.PHRASE else regret
+def _phrase_capped(kind: RecognitionKind, regret: float, limits: AcceptLimits) -> float:
+    """A regret limit, lowered to phrase_max_regret for the short wake/sleep/stop phrases."""
+    return min(regret, limits.phrase_max_regret) if kind is RecognitionKind.PHRASE else regret
 
 
 def _holds(longer: list[str], words: list[str]) -> bool:
@@ -410,23 +410,27 @@ class OfflineRecognizer:
         chosen = self._rescored_choice(reranked, grammar, limits, evidence.free_text)
         if chosen is not None and self._overrules_written_form(chosen, evidence, grammar, limits):
             chosen = None  # Moonshine's form, written word for word, is taken below
-        if chosen is None and forms[0].regret <= limits.accept_regret:
+        if chosen is None and forms[0].regret <= limits.as_written_regret:
             chosen = forms[0]
         if chosen is None and grammar is not None:
             confirmed = self._pocketsphinx_forms.get(filler_heard())
             if confirmed is not None and confirmed.canonical == grammar.canonical:
                 meaning = (grammar.kind, grammar.canonical)
-                same = [s for s in forms if self._meaning(s) == meaning and s.end_regret <= limits.end_regret]
-                limit = _limit(grammar.kind, limits.confirm_regret, limits)
+                same = [
+                    s
+                    for s in forms
+                    if self._meaning(s) == meaning and s.end_regret <= limits.cut_short_regret
+                ]
+                limit = _phrase_capped(grammar.kind, limits.verified_regret, limits)
                 if same and min(s.regret for s in same) <= limit:
                     verified = min(same, key=lambda s: s.regret)
-                    per_word = limits.confirm_written_regret_per_word
-                    if not self._far_from_written(verified, evidence.free_text, per_word):
+                    per_word = limits.verified_off_transcript_per_word
+                    if not self._far_from_transcript(verified, evidence.free_text, per_word):
                         chosen = verified
         if chosen is None:
             return None
         noisy = evidence.snr_db < acceptance.noisy_below_snr_db
-        if chosen.regret > limits.accept_regret and (
+        if chosen.regret > limits.as_written_regret and (
             self._written_in_part(chosen, evidence.free_text)
             or self._not_asked_for(chosen, evidence.free_text, noisy)
         ):
@@ -447,7 +451,7 @@ class OfflineRecognizer:
         pocketsphinx's grammar hearing the other meaning overrules such a transcript (some voices'
         "move full right" is "Move forward" to Moonshine, and the grammar heard "move full right")."""
         written = evidence.forms[0]
-        if written.end_regret > limits.end_regret or self._meaning(chosen) == self._meaning(written):
+        if written.end_regret > limits.cut_short_regret or self._meaning(chosen) == self._meaning(written):
             return False
         words = tuple(_words(evidence.free_text))
         if not words or words not in {tuple(_words(way)) for way in self._written[written.index]}:
@@ -465,7 +469,9 @@ class OfflineRecognizer:
         # A robot tool may drive the base too ("go to the kitchen"), and nothing here says which
         # does: every tool call needs the same positive evidence, from a word that carries meaning.
         tool = form.kind is RecognitionKind.TOOL
-        if not tool and (form.kind is not RecognitionKind.COMMAND or base not in acceptance.moves_base):
+        if not tool and (
+            form.kind is not RecognitionKind.COMMAND or base not in acceptance.base_moving_commands
+        ):
             return False
         if grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score):
             return False
@@ -483,19 +489,19 @@ class OfflineRecognizer:
         """The question, unless a stop phrase may have been said: "halt" was answered with what the
         robot can do (heard as "help"). Stop outranks everything: pocketsphinx's grammar heard it,
         or Moonshine found it (ending where the model ends) within stop_over_question_regret of the
-        question and near enough to be heard (phrase_regret), and it is taken. Nearly as likely but
+        question and near enough to be heard (phrase_max_regret), and it is taken. Nearly as likely but
         further than that (chat: "how old are you" put "stop" at 9.9, the question at 11.4), neither
         is."""
-        stops = [s for s in forms if self._meaning(s) == _STOP and s.end_regret <= limits.end_regret]
+        stops = [s for s in forms if self._meaning(s) == _STOP and s.end_regret <= limits.cut_short_regret]
         if grammar is not None and (grammar.kind, grammar.canonical) == _STOP and stops:
             return min(stops, key=lambda score: score.regret)
         near = [s for s in stops if s.regret <= question.regret + acceptance.stop_over_question_regret]
         if not near:
             return question
         best = min(near, key=lambda score: score.regret)
-        return best if best.regret <= limits.phrase_regret else None
+        return best if best.regret <= limits.phrase_max_regret else None
 
-    def _far_from_written(self, score: FormScore, free_text: str, per_word: float) -> bool:
+    def _far_from_transcript(self, score: FormScore, free_text: str, per_word: float) -> bool:
         """Whether Moonshine wrote words of its own and the form is more than `per_word` regret per
         word of its command from them (a polite form's polite words, written as said, cost no
         regret and earn no allowance). An empty transcript is no evidence against the form:
@@ -507,8 +513,8 @@ class OfflineRecognizer:
     def _written_politely(self, score: FormScore, free_text: str, limits: AcceptLimits) -> bool:
         """Whether Moonshine wrote a polite word and the polite form is near what it wrote."""
         written = set(_words(free_text))
-        return bool(written & self._politeness_cues) and not self._far_from_written(
-            score, free_text, limits.written_regret_per_word
+        return bool(written & self._politeness_cues) and not self._far_from_transcript(
+            score, free_text, limits.off_transcript_per_word
         )
 
     def _written_in_part(self, score: FormScore, free_text: str) -> bool:
@@ -534,8 +540,8 @@ class OfflineRecognizer:
         words = self.forms[chosen.index].words.split()
         meaning = self._meaning(chosen)
         return any(
-            other.regret <= chosen.regret + limits.longer_form_regret
-            and other.end_regret <= limits.end_regret
+            other.regret <= chosen.regret + limits.longer_form_ambiguity_regret
+            and other.end_regret <= limits.cut_short_regret
             and self._meaning(other) != meaning
             and _holds(self.forms[other.index].words.split(), words)
             for other in forms
@@ -563,7 +569,7 @@ class OfflineRecognizer:
             return None
         best = rescored[0]
         score = best.score
-        if score.end_regret > limits.end_regret:  # the model heard more words after it
+        if score.end_regret > limits.cut_short_regret:  # the model heard more words after it
             return None
         form = self.forms[score.index]
         agrees = grammar is not None and (grammar.kind, grammar.canonical) == self._meaning(score)
@@ -571,34 +577,34 @@ class OfflineRecognizer:
             # pocketsphinx does not know the polite words or the extra forms: on Moonshine's word,
             # or a polite form Moonshine wrote politely with more evidence for its command (not
             # on the alignment path; acceptance.py).
-            if score.regret <= limits.near_regret:
+            if score.regret <= limits.moonshine_alone_regret:
                 return score
-            if not form.polite or form.extra or score.regret > limits.polite_regret:
+            if not form.polite or form.extra or score.regret > limits.polite_written_regret:
                 return None
             if not self._written_politely(score, free_text, limits):
                 return None
-            reranked = limits.polite_on_reranking and best.combined >= limits.evidence_score
+            reranked = limits.polite_on_rerank_score and best.combined >= limits.min_rerank_score
             return score if agrees or reranked else None
         kind = form.kind
         # A phrase on Moonshine's word alone only if it is nearly what Moonshine wrote: in noise
         # "what's up" is "wake up" at regret 1.1.
-        near = limits.accept_regret if kind is RecognitionKind.PHRASE else limits.near_regret
+        near = limits.as_written_regret if kind is RecognitionKind.PHRASE else limits.moonshine_alone_regret
         if score.regret <= near:
             return score
         # Moonshine wrote other words ("What's up?", where pocketsphinx's grammar, which must
         # name some form, heard "look up" at regret 8.6): a short form must then be near them
         # word for word. An empty transcript is no evidence against the form.
-        if self._far_from_written(score, free_text, limits.written_regret_per_word):
+        if self._far_from_transcript(score, free_text, limits.off_transcript_per_word):
             return None
         if (
-            (agrees and score.regret <= _limit(kind, limits.agree_regret, limits))
+            (agrees and score.regret <= _phrase_capped(kind, limits.grammar_agrees_regret, limits))
             or (
                 kind is not RecognitionKind.PHRASE
-                and score.regret <= limits.aligned_regret
-                and best.alignment.per_frame >= limits.aligned_per_frame
-                and best.margin >= limits.margin
+                and score.regret <= limits.alignment_path_regret
+                and best.alignment.per_frame >= limits.alignment_path_min_per_frame
+                and best.margin >= limits.alignment_path_min_margin
             )
-            or (kind is not RecognitionKind.PHRASE and best.combined >= limits.evidence_score)
+            or (kind is not RecognitionKind.PHRASE and best.combined >= limits.min_rerank_score)
         ):
             return score
         return None

@@ -36,7 +36,7 @@ class Alignment:
 @dataclass(frozen=True)
 class RerankWeights:
     """What each piece of evidence about a candidate meaning adds to its reranking score: a
-    conditional logit fitted on the tuning records (docs/offline.md, sixth tuning run;
+    conditional logit fitted on the tuning records (bench/offline_experiments.md;
     bench/tune_offline_reranking.py fits them again)."""
 
     logprob: float = 0.24  # Moonshine's log probability of the form

@@ -11,33 +11,33 @@ from by_your_command.offline.acceptance import Acceptance, AcceptLimits
 
 @pytest.mark.unit
 def test_limits_are_checked() -> None:
-    with pytest.raises(ValueError, match="accept_regret"):
-        AcceptLimits(accept_regret=5.0, confirm_regret=1.0)
-    with pytest.raises(ValueError, match="accept_regret"):
-        AcceptLimits(phrase_regret=0.5)
+    with pytest.raises(ValueError, match="as_written_regret"):
+        AcceptLimits(as_written_regret=5.0, verified_regret=1.0)
+    with pytest.raises(ValueError, match="as_written_regret"):
+        AcceptLimits(phrase_max_regret=0.5)
     with pytest.raises(ValueError, match="polite"):
-        AcceptLimits(polite_regret=0.5)
-    with pytest.raises(ValueError, match="accept_regret"):
-        AcceptLimits(accept_regret=-1.0)
+        AcceptLimits(polite_written_regret=0.5)
+    with pytest.raises(ValueError, match="as_written_regret"):
+        AcceptLimits(as_written_regret=-1.0)
     for bad in (
-        {"aligned_per_frame": math.nan},
-        {"phrase_regret": math.inf},
-        {"polite_regret": math.nan},
-        {"end_regret": math.nan},
-        {"evidence_score": -math.inf},
+        {"alignment_path_min_per_frame": math.nan},
+        {"phrase_max_regret": math.inf},
+        {"polite_written_regret": math.nan},
+        {"cut_short_regret": math.nan},
+        {"min_rerank_score": -math.inf},
     ):
         with pytest.raises(ValueError, match="finite"):
             AcceptLimits(**bad)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="negative"):
-        AcceptLimits(margin=-1.0)
+        AcceptLimits(alignment_path_min_margin=-1.0)
     with pytest.raises(ValueError, match="negative"):
-        AcceptLimits(written_regret_per_word=-1.0)
+        AcceptLimits(off_transcript_per_word=-1.0)
     with pytest.raises(ValueError, match="finite"):
-        AcceptLimits(written_regret_per_word=math.nan)
+        AcceptLimits(off_transcript_per_word=math.nan)
     with pytest.raises(ValueError, match="negative"):
-        AcceptLimits(confirm_written_regret_per_word=-0.5)
+        AcceptLimits(verified_off_transcript_per_word=-0.5)
     with pytest.raises(ValueError, match="finite"):
-        AcceptLimits(confirm_written_regret_per_word=math.inf)
+        AcceptLimits(verified_off_transcript_per_word=math.inf)
     with pytest.raises(ValueError, match="rescore_meanings"):
         Acceptance(rescore_meanings=0)
     with pytest.raises(ValueError, match="noisy_below_snr_db"):
@@ -53,9 +53,9 @@ def test_limits_are_checked() -> None:
 @pytest.mark.unit
 def test_noisy_and_reverberant_utterances_get_their_own_limits() -> None:
     clean, noisy, reverberant = (
-        AcceptLimits(near_regret=3.0),
-        AcceptLimits(near_regret=4.0),
-        AcceptLimits(near_regret=2.0),
+        AcceptLimits(moonshine_alone_regret=3.0),
+        AcceptLimits(moonshine_alone_regret=4.0),
+        AcceptLimits(moonshine_alone_regret=2.0),
     )
     acceptance = Acceptance(
         clean=clean,
@@ -70,4 +70,4 @@ def test_noisy_and_reverberant_utterances_get_their_own_limits() -> None:
     assert acceptance.limits(12.0, 180.0) is noisy  # under noise the fall time is not seen
     shipped = Acceptance()  # the shipped limits differ
     assert shipped.noisy != shipped.clean
-    assert shipped.reverberant.confirm_regret < shipped.clean.confirm_regret
+    assert shipped.reverberant.verified_regret < shipped.clean.verified_regret

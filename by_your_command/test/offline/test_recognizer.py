@@ -314,14 +314,14 @@ def test_a_short_form_must_be_near_the_words_moonshine_wrote(recognizer: Offline
     clean, noisy = recognizer.config.acceptance.clean, recognizer.config.acceptance.noisy
     choose = _chooser(recognizer, clean)
     heard = recognizer.forms[look_up]
-    regret = 2 * clean.written_regret_per_word + 0.5  # within agree_regret
-    assert regret <= clean.agree_regret
+    regret = 2 * clean.off_transcript_per_word + 0.5  # within grammar_agrees_regret
+    assert regret <= clean.grammar_agrees_regret
     far = _rescored(FormScore(look_up, -10.0, regret))
     assert choose([far], heard) is far.score  # Moonshine wrote nothing: no evidence against it
     assert choose([far], heard, free_text="...") is far.score
     assert choose([far], heard, free_text="What's up?") is None
     assert _chooser(recognizer, noisy)([far], heard, free_text="What's up?") is far.score  # noise
-    near = _rescored(FormScore(look_up, -3.0, clean.near_regret))
+    near = _rescored(FormScore(look_up, -3.0, clean.moonshine_alone_regret))
     assert choose([near], None, free_text="Book up.") is near.score  # Moonshine's word alone
     longer = _rescored(FormScore(pan_left, -10.0, regret))  # four words
     assert choose([longer], recognizer.forms[pan_left], free_text="Then to the left.") is longer.score
@@ -337,7 +337,7 @@ def test_a_reranking_score_that_weighs_enough_evidence_is_taken_on_its_own(
     limits = recognizer.config.acceptance.clean
     choose = _chooser(recognizer, limits)
     far = FormScore(look_up, -12.0, 10.0)
-    strong, weak = limits.evidence_score + 0.5, limits.evidence_score - 0.5
+    strong, weak = limits.min_rerank_score + 0.5, limits.min_rerank_score - 0.5
     assert choose([_rescored(far, per_frame=-2.5, margin=0.1, combined=strong)], None) is far
     assert choose([_rescored(far, per_frame=-2.5, margin=0.1, combined=weak)], None) is None
     assert choose([_rescored(FormScore(freeze, -12.0, 10.0), -2.5, 0.1, combined=strong)], None) is None
@@ -350,39 +350,39 @@ def test_a_polite_form_needs_moonshines_word_or_its_politeness_and_more_evidence
     recognizer: OfflineRecognizer,
 ) -> None:
     """pocketsphinx does not know the polite words, and in noise Moonshine makes "please" of any
-    "pl..." ("play some music" as "please follow me"): beyond near_regret a polite form is taken
+    "pl..." ("play some music" as "please follow me"): beyond moonshine_alone_regret a polite form is taken
     only when Moonshine wrote a polite word, within the written limit per word of the command (not
     of the polite words it wrote too), and pocketsphinx's grammar heard the command it wraps or,
     in quiet only, the reranking score is evidence enough. Never on the alignment path."""
     plain, polite = _form(recognizer, "follow me"), _form(recognizer, "please follow me")
     limits = recognizer.config.acceptance.noisy
     choose = _chooser(recognizer, limits)
-    near = limits.near_regret - 0.5
+    near = limits.moonshine_alone_regret - 0.5
     assert choose([_rescored(FormScore(polite, -3.0, near))], None) is not None
-    strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.evidence_score + 3.0}
+    strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.min_rerank_score + 3.0}
     heard = recognizer.forms[plain]
-    for regret in (limits.aligned_regret - 0.5, limits.polite_regret - 0.5):
+    for regret in (limits.alignment_path_regret - 0.5, limits.polite_written_regret - 0.5):
         assert choose([_rescored(FormScore(plain, -9.0, regret), **strong)], heard) is not None
         assert choose([_rescored(FormScore(polite, -9.0, regret), **strong)], heard) is None  # wrote nothing
-    within = FormScore(polite, -9.0, limits.polite_regret - 0.5)
+    within = FormScore(polite, -9.0, limits.polite_written_regret - 0.5)
     assert choose([_rescored(within)], heard, free_text="Please follow the meat.") is within
     assert choose([_rescored(within)], heard, free_text="Lay some music.") is None  # no polite word
     assert choose([_rescored(within)], None, free_text="Please follow the meat.") is None  # grammar did not
-    beyond = FormScore(polite, -9.0, limits.polite_regret + 0.5)
+    beyond = FormScore(polite, -9.0, limits.polite_written_regret + 0.5)
     assert choose([_rescored(beyond)], heard, free_text="Please follow the meat.") is None
-    # "follow me" is two words: taken up to written_regret_per_word x 2 from what Moonshine wrote.
+    # "follow me" is two words: taken up to off_transcript_per_word x 2 from what Moonshine wrote.
     clean = recognizer.config.acceptance.clean
     choose_clean = _chooser(recognizer, clean)
-    near_written = FormScore(polite, -9.0, 2 * clean.written_regret_per_word - 0.5)
-    far = FormScore(polite, -9.0, 2 * clean.written_regret_per_word + 0.5)
-    assert clean.near_regret < near_written.regret and far.regret <= clean.polite_regret
+    near_written = FormScore(polite, -9.0, 2 * clean.off_transcript_per_word - 0.5)
+    far = FormScore(polite, -9.0, 2 * clean.off_transcript_per_word + 0.5)
+    assert clean.moonshine_alone_regret < near_written.regret and far.regret <= clean.polite_written_regret
     assert choose_clean([_rescored(near_written)], heard, free_text="Please follow the meat.") is near_written
     assert choose_clean([_rescored(far)], heard, free_text="Please follow the meat.") is None
     # The grammar heard something else: the reranking score decides, in quiet only.
-    for evidence, taken in ((clean.evidence_score + 0.5, True), (clean.evidence_score - 0.5, False)):
+    for evidence, taken in ((clean.min_rerank_score + 0.5, True), (clean.min_rerank_score - 0.5, False)):
         chosen = choose_clean([_rescored(near_written, combined=evidence)], None, free_text="Please follow.")
         assert (chosen is near_written) is taken, evidence
-    sure = _rescored(within, combined=limits.evidence_score + 3.0)
+    sure = _rescored(within, combined=limits.min_rerank_score + 3.0)
     assert choose([sure], None, free_text="Please follow the meat.") is None  # in noise
 
 
@@ -392,7 +392,7 @@ def test_a_polite_command_in_noise_is_taken_when_pocketsphinx_heard_the_command(
 ) -> None:
     """In noise Moonshine is rarely sure of a polite form word for word: here it wrote "Can you
     look out to the light?" and put "can you look out to the right" at regret 5.6, beyond the noisy
-    near_regret; pocketsphinx's grammar heard "lookout to the right"."""
+    moonshine_alone_regret; pocketsphinx's grammar heard "lookout to the right"."""
     speech = synthesize("can you look out to the right", "en-us+m7")
     line = np.frombuffer(speech, dtype=np.int16).astype(np.float64)
     # White noise at 15 dB below the speech, also a quarter second either side (VAD pre-roll).
@@ -423,9 +423,12 @@ def test_an_extra_form_is_taken_on_moonshines_word_alone(recognizer: OfflineReco
     acceptance = recognizer.config.acceptance
     limits = acceptance.noisy
     choose = _chooser(recognizer, limits)
-    strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.evidence_score + 3.0}
+    strong = {"per_frame": -1.0, "margin": 5.0, "combined": limits.min_rerank_score + 3.0}
     assert choose([_rescored(FormScore(turn_around, -10.0, 9.15), **strong)], None) is None
-    assert choose([_rescored(FormScore(turn_around, -3.0, limits.near_regret - 0.5))], None) is not None
+    assert (
+        choose([_rescored(FormScore(turn_around, -3.0, limits.moonshine_alone_regret - 0.5))], None)
+        is not None
+    )
     heard = Evidence(
         acceptance.noisy_below_snr_db - 5.0, [FormScore(turn_around, -10.0, 9.15)], "", "turn around", []
     )
@@ -448,7 +451,7 @@ def test_a_phrase_needs_stronger_evidence_than_a_command(recognizer: OfflineReco
     assert choose([_rescored(FormScore(freeze, -7.0, 5.5), -3.0)], heard_freeze) is not None
     assert (
         choose([_rescored(FormScore(freeze, -9.0, 7.5), -3.0)], heard_freeze) is None
-    )  # beyond phrase_regret
+    )  # beyond phrase_max_regret
     assert choose([_rescored(FormScore(look_up, -9.0, 7.5), -3.0)], recognizer.forms[look_up]) is not None
 
 
@@ -527,7 +530,7 @@ def test_a_form_moonshine_is_sure_of_gives_way_to_a_meaning_that_aligns_much_bet
     best = recognizer._scorer.analyse(recognizer._moonshine_input(samples).audio).forms[0]  # type: ignore[union-attr]
     assert (
         recognizer._meaning(best)[1] == "move@forward"
-        and best.regret <= recognizer.config.acceptance.clean.accept_regret
+        and best.regret <= recognizer.config.acceptance.clean.as_written_regret
     )
     assert recognizer.recognize(pcm, RATE).canonical == "move@full-right"
 
@@ -541,7 +544,9 @@ def test_a_noisy_utterance_is_judged_by_the_noisy_limits(
     from by_your_command.offline.acceptance import Acceptance, AcceptLimits
     from by_your_command.offline.moonshine import Analysis, Transcript
 
-    acceptance = Acceptance(clean=AcceptLimits(near_regret=3.0), noisy=AcceptLimits(near_regret=4.5))
+    acceptance = Acceptance(
+        clean=AcceptLimits(moonshine_alone_regret=3.0), noisy=AcceptLimits(moonshine_alone_regret=4.5)
+    )
     monkeypatch.setattr(recognizer, "config", dataclasses.replace(recognizer.config, acceptance=acceptance))
     monkeypatch.setattr(recognizer, "_decode", lambda audio, search: ("", 0.0))  # pocketsphinx heard nothing
     monkeypatch.setattr(recognizer, "_align", lambda audio, words: Alignment(-300.0, 100))  # aligns poorly
@@ -591,7 +596,7 @@ def test_recorded_evidence_is_decided_without_decoding_and_the_filler_pass_is_as
 def test_noise_does_not_loosen_the_verified_path(recognizer: OfflineRecognizer) -> None:
     """ "track my order" in pink noise: Moonshine wrote it word for word, both pocketsphinx passes
     heard "track the ball", which Moonshine put at regret 14.2. Under noise every regret grows, but
-    a looser verified path took 4 tuning chat lines for 6 commands (docs/offline.md)."""
+    a looser verified path took 4 tuning chat lines for 6 commands (bench/offline_experiments.md)."""
     track_the_ball = _form(recognizer, "track the ball")
     acceptance = recognizer.config.acceptance
     noisy_snr = acceptance.noisy_below_snr_db - 3.0
@@ -618,13 +623,13 @@ def test_the_verified_form_must_be_near_the_words_moonshine_wrote(recognizer: Of
 
     assert verified("Up.", 9.1) is None
     assert verified("", 9.1) is not None  # Moonshine wrote nothing: no evidence against it
-    assert verified("Mum put.", acceptance.clean.confirm_written_regret_per_word - 0.5) is not None
+    assert verified("Mum put.", acceptance.clean.verified_off_transcript_per_word - 0.5) is not None
     # A polite form's limit counts the command's words: its polite words earn no allowance
     # ("don't look up" in noise, written "No need to look up", was verified as "please look out").
     please_look_out = _form(recognizer, "please look out")
-    per_word = acceptance.clean.confirm_written_regret_per_word
+    per_word = acceptance.clean.verified_off_transcript_per_word
     for regret, taken in ((2 * per_word - 0.5, True), (2 * per_word + 0.5, False)):
-        assert regret <= acceptance.clean.confirm_regret
+        assert regret <= acceptance.clean.verified_regret
         forms = [FormScore(please_look_out, -12.0, regret)]
         evidence = Evidence(40.0, forms, "Please look at that.", "look out", [])
         assert (recognizer.decide(evidence, acceptance, lambda: "look out") is not None) is taken, regret
@@ -643,13 +648,13 @@ def test_a_word_said_alone_is_not_a_form_that_holds_it(recognizer: OfflineRecogn
         evidence = Evidence(40.0, [FormScore(index, -8.0, regret)], free_text, heard, [])
         return recognizer.decide(evidence, acceptance, lambda: heard)
 
-    agreeing = 2 * acceptance.clean.written_regret_per_word - 0.5  # the grammar agrees, near enough
+    agreeing = 2 * acceptance.clean.off_transcript_per_word - 0.5  # the grammar agrees, near enough
     assert decided(look_up, "Up.", agreeing) is None
     assert decided(look_up, "Look. Up!", agreeing) is not None  # all of its words
     assert decided(look_up, "Look at.", agreeing) is not None  # other words: near enough to them
     assert decided(reach_left, "Left, left.", 8.0) is None  # verified, within 5 per word
     assert decided(reach_left, "", 8.0) is not None
-    assert decided(look_up, "Up.", acceptance.clean.accept_regret) is not None  # Moonshine's own word
+    assert decided(look_up, "Up.", acceptance.clean.as_written_regret) is not None  # Moonshine's own word
 
 
 @pytest.mark.unit
@@ -672,7 +677,7 @@ def test_a_form_is_not_taken_when_moonshine_wrote_it_told_of_forbidden_or_as_a_c
     assert decided("If you follow the ball,", 6.0) is None
     assert decided("Follow the bowl.", 6.0) is not None  # misheard, but told of nothing
     assert decided("", 6.0) is not None
-    assert decided("I followed the ball.", acceptance.clean.accept_regret) is not None  # its own words
+    assert decided("I followed the ball.", acceptance.clean.as_written_regret) is not None  # its own words
 
 
 @pytest.mark.unit
@@ -691,7 +696,7 @@ def test_a_form_is_not_taken_when_moonshine_finds_it_with_a_word_more_nearly_as_
         return recognizer.decide(evidence, acceptance, lambda: "reach to the right")
 
     assert decided(6.1) is None
-    assert decided(8.6 + acceptance.clean.longer_form_regret + 0.1) is not None  # far less likely
+    assert decided(8.6 + acceptance.clean.longer_form_ambiguity_regret + 0.1) is not None  # far less likely
     polite = _form(recognizer, "reach to the right please")  # the same meaning, a word more
     assert decided(6.1, polite) is not None
 
@@ -805,7 +810,7 @@ def test_a_stop_phrase_is_never_taken_as_a_question(recognizer: OfflineRecognize
     is taken (chat: "how old are you" put "stop" at 9.9 and the question at 11.4)."""
     help_, halt = _form(recognizer, "help"), _form(recognizer, "halt")
     acceptance = recognizer.config.acceptance
-    apart, phrase_regret = acceptance.stop_over_question_regret, acceptance.clean.phrase_regret
+    apart, phrase_max_regret = acceptance.stop_over_question_regret, acceptance.clean.phrase_max_regret
 
     def decided(
         help_regret: float, halt_regret: float, grammar_text: str
@@ -818,6 +823,6 @@ def test_a_stop_phrase_is_never_taken_as_a_question(recognizer: OfflineRecognize
     stop, capabilities = (RecognitionKind.PHRASE, "stop"), (RecognitionKind.QUESTION, "capabilities")
     assert decided(0.0, apart - 0.5, "help") == stop
     # Nearly as likely, but not near enough to be heard: neither.
-    assert decided(phrase_regret - 1.0, phrase_regret + 0.5, "help") is None
+    assert decided(phrase_max_regret - 1.0, phrase_max_regret + 0.5, "help") is None
     assert decided(0.0, apart + 0.5, "help") == capabilities  # "help", said clearly: "halt" far behind
     assert decided(0.0, 14.0, "halt") == stop  # pocketsphinx heard it
