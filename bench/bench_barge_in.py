@@ -67,7 +67,7 @@ from _agent_bench import (  # noqa: E402
 from by_your_command.audio.pcm import resample  # noqa: E402
 from by_your_command.emulators.openai_script import Say, Script, Turn  # noqa: E402
 from by_your_command.emulators.synthetic_speech import OUTPUT_RATE, speech_pcm  # noqa: E402
-from by_your_command.offline.speaker import Speaker, SpeakerConfig  # noqa: E402
+from by_your_command.local_speech.speaker import Speaker, SpeakerConfig  # noqa: E402
 
 GOAL_PAUSE_P95_MS = 60.0
 GOAL_REAL_CONFIRMED = 0.95

@@ -44,8 +44,8 @@ import numpy as np
 import numpy.typing as npt
 
 from by_your_command.audio.pcm import Int16Array, resample
-from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, RecognizerConfig, Search
-from by_your_command.offline.spoken import RecognitionKind, SpokenForm
+from by_your_command.local_speech.recognizer import OfflineRecognizer, Recognition, RecognizerConfig, Search
+from by_your_command.local_speech.spoken import RecognitionKind, SpokenForm
 
 RATE = 16000
 HELD_OUT_VOICES = ("en-us+f3", "en-us+m7", "en-gb-x-rp", "en-029")

@@ -32,8 +32,8 @@ import wave
 from pathlib import Path
 from typing import Any
 
-from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, RecognizerConfig, Search
-from by_your_command.offline.spoken import RecognitionKind
+from by_your_command.local_speech.recognizer import OfflineRecognizer, Recognition, RecognizerConfig, Search
+from by_your_command.local_speech.spoken import RecognitionKind
 
 BASELINE = Search.BARE_GRAMMAR
 COMMAND_KINDS = (RecognitionKind.COMMAND, RecognitionKind.PHRASE)

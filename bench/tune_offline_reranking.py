@@ -1,4 +1,4 @@
-"""Fit the offline recognizer's reranking weights (offline/rescoring.py, RerankWeights) on tuning
+"""Fit the offline recognizer's reranking weights (local_speech/rescoring.py, RerankWeights) on tuning
 voices, and show what the accept rules make of them.
 
 Tuning voices are espeak-ng voices, speeds and pitches that the benchmark never uses
@@ -48,10 +48,16 @@ from bench_offline_recognition import (
 from scipy.optimize import minimize
 
 from by_your_command.audio.pcm import Int16Array
-from by_your_command.offline.acceptance import Acceptance, AcceptLimits
-from by_your_command.offline.moonshine import FormScore
-from by_your_command.offline.recognizer import Evidence, OfflineRecognizer
-from by_your_command.offline.rescoring import Alignment, Candidate, RerankWeights, evidence_vector, rescore
+from by_your_command.local_speech.acceptance import Acceptance, AcceptLimits
+from by_your_command.local_speech.moonshine import FormScore
+from by_your_command.local_speech.recognizer import Evidence, OfflineRecognizer
+from by_your_command.local_speech.rescoring import (
+    Alignment,
+    Candidate,
+    RerankWeights,
+    evidence_vector,
+    rescore,
+)
 
 # (voice, words per minute, pitch): none of them is a benchmark voice
 TUNING_VOICES = (

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from by_your_command.agents.provider import ToolSpec
-from by_your_command.offline.tool_phrases import select_phrases, words_of
+from by_your_command.local_speech.tool_phrases import select_phrases, words_of
 
 # Said around a request without changing it ("robot, could you please dock now, thanks").
 _POLITE_OPENINGS = (

@@ -29,11 +29,11 @@ from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruptio
 from rclpy.node import Node
 from std_msgs.msg import Bool, String
 
+from by_your_command.local_speech.speaker import Speaker, SpeakerConfig, SpeechError
 from by_your_command.nodes._audio_msgs import int16_field, make_audio_chunk, pcm_of
 from by_your_command.nodes._delivery import DeliveryCheck
 from by_your_command.nodes._params import declare_config
 from by_your_command.nodes._qos import AUDIO_IN, LATCHED, RELIABLE
-from by_your_command.offline.speaker import Speaker, SpeakerConfig, SpeechError
 from by_your_command.safety.spotter import Detection, StopSpotter
 from by_your_command.safety.worker import SpotterWorker
 from by_your_command.vad.attention import Attention, AttentionState, PhraseCommand, PhraseMatcher

@@ -14,8 +14,8 @@ from agent_graph import VAD_RATE
 from builtin_interfaces.msg import Time
 from byc_testing import python_module, running_process
 
+from by_your_command.local_speech.speaker import Speaker, SpeakerConfig
 from by_your_command.nodes._audio_msgs import make_audio_chunk
-from by_your_command.offline.speaker import Speaker, SpeakerConfig
 
 BLOCK = 512  # the microphone's block: 32 ms
 NS_PER_S = 1_000_000_000

@@ -17,7 +17,7 @@ from by_your_command.agents.config import AgentConfig, AgentRole, EchoMode
 from by_your_command.agents.inputs import PlaybackStatus, SafetyStop, VoiceActivity
 from by_your_command.agents.overlap_words import LocalTranscriber, interrupting_words
 from by_your_command.agents.runtime import RECENT_CUTS
-from by_your_command.offline.speaker import Speaker, SpeakerConfig
+from by_your_command.local_speech.speaker import Speaker, SpeakerConfig
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
 

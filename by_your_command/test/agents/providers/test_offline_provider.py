@@ -47,9 +47,9 @@ from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL, TOOL_NAME, res
 from by_your_command.agents.runtime import LATE_RESULT_NOTE, AgentRuntime
 from by_your_command.audio.pcm import read_wav, resample
 from by_your_command.cli import byc
-from by_your_command.offline.recognizer import Recognition
-from by_your_command.offline.speaker import Speaker
-from by_your_command.offline.tool_phrases import ToolPhrase
+from by_your_command.local_speech.recognizer import Recognition
+from by_your_command.local_speech.speaker import Speaker
+from by_your_command.local_speech.tool_phrases import ToolPhrase
 
 pytestmark = pytest.mark.unit
 T = TypeVar("T")

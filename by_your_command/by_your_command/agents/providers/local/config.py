@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from by_your_command.offline.replies import NOT_CAUGHT, RepliesConfig
-from by_your_command.offline.speaker import SpeakerConfig
-from by_your_command.offline.tool_phrases import PhraseLimits
+from by_your_command.local_speech.replies import NOT_CAUGHT, RepliesConfig
+from by_your_command.local_speech.speaker import SpeakerConfig
+from by_your_command.local_speech.tool_phrases import PhraseLimits
 
 
 @dataclass(frozen=True)

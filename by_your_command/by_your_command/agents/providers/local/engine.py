@@ -1,7 +1,7 @@
 """The offline speech engine as the offline provider uses it: load once, recognize, understand
 typed text, say.
 
-`LocalEngine` wraps the library in by_your_command/offline/ (pocketsphinx + espeak-ng). Loading
+`LocalEngine` wraps the library in by_your_command/local_speech/ (pocketsphinx + espeak-ng). Loading
 takes seconds (the acoustic model and the search), so it happens off the event loop, when the first
 session connects, and the factory shares the loaded engine with every later session: a new session
 costs nothing. Its methods block and are called from threads; a timed-out call may still run when
@@ -10,7 +10,7 @@ one here). Replies said before are kept (a few, bounded), and the not-heard repl
 saying them again runs no synthesis.
 
 The robot's tools are heard too (`use_tools`): the recognizer is rebuilt with their phrases (the
-provider selects and bounds them, offline/tool_phrases.py), off the event loop, only when
+provider selects and bounds them, local_speech/tool_phrases.py), off the event loop, only when
 the set of phrases changes (a new session with the same tools costs nothing). The rebuild shares
 the loaded models (OfflineRecognizer.with_tools); a decode already running finishes on the
 recognizer it started on.
@@ -26,9 +26,9 @@ from typing import Protocol, TypeVar
 
 from by_your_command.agents.providers.local.config import OfflineConfig
 from by_your_command.agents.providers.local.text import TextMatcher
-from by_your_command.offline.recognizer import OfflineRecognizer, Recognition, RecognizerConfig
-from by_your_command.offline.speaker import Speaker
-from by_your_command.offline.tool_phrases import ToolPhrase
+from by_your_command.local_speech.recognizer import OfflineRecognizer, Recognition, RecognizerConfig
+from by_your_command.local_speech.speaker import Speaker
+from by_your_command.local_speech.tool_phrases import ToolPhrase
 
 log = logging.getLogger(__name__)
 

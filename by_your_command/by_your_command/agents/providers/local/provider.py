@@ -2,7 +2,7 @@
 and says "I did not catch that" to everything else (nothing, when the user already speaks again).
 
 A turn's audio is buffered (bounded) and decoded at end_of_turn by the offline recognizer
-(by_your_command/offline/: pocketsphinx with a language model generated from the command
+(by_your_command/local_speech/: pocketsphinx with a language model generated from the command
 vocabulary and a garbage loop, so chat is rejected, not forced into a command); typed text is
 matched against the same spoken forms. A command becomes a `robot_command` tool call
 (tool mode), so the runtime publishes it on `response_cmd` and hands back the command processor's
@@ -61,10 +61,10 @@ from by_your_command.agents.providers.local.replies import (
 )
 from by_your_command.agents.providers.local.text import rejected
 from by_your_command.agents.robot_tool import TOOL_NAME
-from by_your_command.offline.recognizer import Recognition
-from by_your_command.offline.replies import acknowledgement, answer
-from by_your_command.offline.spoken import RecognitionKind
-from by_your_command.offline.tool_phrases import PhraseLimits, select_phrases, tool_call
+from by_your_command.local_speech.recognizer import Recognition
+from by_your_command.local_speech.replies import acknowledgement, answer
+from by_your_command.local_speech.spoken import RecognitionKind
+from by_your_command.local_speech.tool_phrases import PhraseLimits, select_phrases, tool_call
 
 log = logging.getLogger(__name__)
 

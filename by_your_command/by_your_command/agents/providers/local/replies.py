@@ -1,5 +1,5 @@
 """The offline agent's answer to a tool result: a robot_command verdict or a robot tool's outcome
-(acknowledgements and question answers are in offline/replies.py).
+(acknowledgements and question answers are in local_speech/replies.py).
 
 A verdict comes back as the tool result the runtime wrote (agents/robot_tool.result_json), a robot
 tool's outcome as `{"ok", "tool", "status", "result" | "error"}` (agents/robot_calls.call_result).

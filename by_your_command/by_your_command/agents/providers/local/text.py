@@ -2,7 +2,7 @@
 without a recognizer.
 
 A text turn is matched whole against the spoken forms generated from the command vocabulary and
-the session's tool phrases (offline/spoken.py), so "look up" typed means what "look up" said
+the session's tool phrases (local_speech/spoken.py), so "look up" typed means what "look up" said
 means, and "go to the kitchen" calls the tool whose phrase it is. A command typed in its
 normal form ("pan@left") is accepted too; a bare bearing ("right") is not, for the reason the
 spoken vocabulary leaves it out: alone it is agreement far more often than a command.
@@ -15,13 +15,13 @@ from collections.abc import Sequence
 
 from by_your_command.commands.grammar import CommandGrammar
 from by_your_command.commands.vocabulary import Vocabulary
-from by_your_command.offline.recognizer import Recognition
-from by_your_command.offline.spoken import (
+from by_your_command.local_speech.recognizer import Recognition
+from by_your_command.local_speech.spoken import (
     RecognitionKind,
     SpokenVocabularyConfig,
     build_spoken_forms,
 )
-from by_your_command.offline.tool_phrases import ToolPhrase
+from by_your_command.local_speech.tool_phrases import ToolPhrase
 
 _NOT_WORDS = re.compile(r"[^a-z' ]+")
 _EDGE = " \t.,;:!?\"'`"

@@ -57,7 +57,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from by_your_command.offline.rescoring import RerankWeights
+from by_your_command.local_speech.rescoring import RerankWeights
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from by_your_command.offline.moonshine import FormScore
-from by_your_command.offline.rescoring import Alignment, Candidate, RerankWeights, leading, rescore
+from by_your_command.local_speech.moonshine import FormScore
+from by_your_command.local_speech.rescoring import Alignment, Candidate, RerankWeights, leading, rescore
 
 MEANINGS = {0: "lookup@forward", 1: "lookup@forward", 2: "lookup@full-right", 3: "reach@forward", 4: "stop"}
 

@@ -36,9 +36,9 @@ import numpy as np
 import numpy.typing as npt
 import onnxruntime
 
-from by_your_command.offline.ort_format import onnx_model
-from by_your_command.offline.spoken import sentence_case
-from by_your_command.offline.tokenizer import END, START, Tokenizer
+from by_your_command.local_speech.ort_format import onnx_model
+from by_your_command.local_speech.spoken import sentence_case
+from by_your_command.local_speech.tokenizer import END, START, Tokenizer
 
 log = logging.getLogger(__name__)
 

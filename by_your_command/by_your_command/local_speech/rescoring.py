@@ -18,7 +18,7 @@ import math
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 
-from by_your_command.offline.moonshine import FormScore
+from by_your_command.local_speech.moonshine import FormScore
 
 
 @dataclass(frozen=True)

@@ -42,19 +42,19 @@ import numpy as np
 
 from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.commands.vocabulary import Vocabulary, load_vocabulary
-from by_your_command.offline.acceptance import Acceptance, AcceptLimits
-from by_your_command.offline.asking import Verbs, not_asked_for
-from by_your_command.offline.filler_words import FILLER_WORDS
-from by_your_command.offline.front_end import Cleaned, NoiseSuppression, fall_time_ms, suppress_noise
-from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
-from by_your_command.offline.moonshine import (
+from by_your_command.local_speech.acceptance import Acceptance, AcceptLimits
+from by_your_command.local_speech.asking import Verbs, not_asked_for
+from by_your_command.local_speech.filler_words import FILLER_WORDS
+from by_your_command.local_speech.front_end import Cleaned, NoiseSuppression, fall_time_ms, suppress_noise
+from by_your_command.local_speech.language_model import GarbageWeights, arpa_model, jsgf_grammar
+from by_your_command.local_speech.moonshine import (
     FormScore,
     ModelUnavailableError,
     MoonshineConfig,
     MoonshineScorer,
 )
-from by_your_command.offline.rescoring import Alignment, Candidate, Rescored, leading, rescore
-from by_your_command.offline.spoken import (
+from by_your_command.local_speech.rescoring import Alignment, Candidate, Rescored, leading, rescore
+from by_your_command.local_speech.spoken import (
     RecognitionKind,
     SpokenForm,
     SpokenVocabularyConfig,
@@ -63,7 +63,7 @@ from by_your_command.offline.spoken import (
     said_again,
     written_forms,
 )
-from by_your_command.offline.tool_phrases import NOT_IN_DICTIONARY, TAKEN, ToolPhrase, warn_left_out
+from by_your_command.local_speech.tool_phrases import NOT_IN_DICTIONARY, TAKEN, ToolPhrase, warn_left_out
 
 log = logging.getLogger(__name__)
 

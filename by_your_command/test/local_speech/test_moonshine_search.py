@@ -9,14 +9,14 @@ from pathlib import Path
 
 import pytest
 
-from by_your_command.offline.moonshine import MoonshineConfig
-from by_your_command.offline.recognizer import (
+from by_your_command.local_speech.moonshine import MoonshineConfig
+from by_your_command.local_speech.recognizer import (
     OfflineRecognizer,
     RecognizerConfig,
     Rejection,
     Search,
 )
-from by_your_command.offline.spoken import RecognitionKind
+from by_your_command.local_speech.spoken import RecognitionKind
 
 RATE = 16000
 Synthesize = Callable[[str, str], bytes]

@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from by_your_command.offline.replies import (
+from by_your_command.local_speech.replies import (
     NOT_CAUGHT,
     RepliesConfig,
     acknowledgement,
     answer,
     time_of_day,
 )
-from by_your_command.offline.speaker import Speaker, SpeakerConfig, SpeechError, sanitize
+from by_your_command.local_speech.speaker import Speaker, SpeakerConfig, SpeechError, sanitize
 
 
 def _seconds(pcm: bytes, rate: int) -> float:

@@ -9,11 +9,11 @@ from collections.abc import Callable
 import pytest
 
 from by_your_command.commands.vocabulary import load_vocabulary
-from by_your_command.offline.moonshine import FormScore
-from by_your_command.offline.recognizer import Evidence, OfflineRecognizer
-from by_your_command.offline.rescoring import Alignment, Candidate
-from by_your_command.offline.spoken import RecognitionKind, SpokenVocabularyConfig, build_spoken_forms
-from by_your_command.offline.tool_phrases import (
+from by_your_command.local_speech.moonshine import FormScore
+from by_your_command.local_speech.recognizer import Evidence, OfflineRecognizer
+from by_your_command.local_speech.rescoring import Alignment, Candidate
+from by_your_command.local_speech.spoken import RecognitionKind, SpokenVocabularyConfig, build_spoken_forms
+from by_your_command.local_speech.tool_phrases import (
     AMBIGUOUS,
     BAD_TOOL,
     NOT_IN_DICTIONARY,

@@ -9,8 +9,13 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from by_your_command.offline.acceptance import Acceptance
-from by_your_command.offline.front_end import NO_BACKGROUND_DB, NoiseSuppression, fall_time_ms, suppress_noise
+from by_your_command.local_speech.acceptance import Acceptance
+from by_your_command.local_speech.front_end import (
+    NO_BACKGROUND_DB,
+    NoiseSuppression,
+    fall_time_ms,
+    suppress_noise,
+)
 
 RATE = 16000
 

@@ -6,8 +6,8 @@ import numpy as np
 import onnxruntime
 import pytest
 
-from by_your_command.offline.moonshine import HEAD_DIM, HEADS, LAYERS, default_model_dir
-from by_your_command.offline.ort_format import FormatError, _varint, onnx_model
+from by_your_command.local_speech.moonshine import HEAD_DIM, HEADS, LAYERS, default_model_dir
+from by_your_command.local_speech.ort_format import FormatError, _varint, onnx_model
 
 
 def _session(model: bytes | str) -> onnxruntime.InferenceSession:

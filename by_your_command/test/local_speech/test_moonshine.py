@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from by_your_command.offline.moonshine import (
+from by_your_command.local_speech.moonshine import (
     FormScore,
     ModelUnavailableError,
     MoonshineConfig,
     MoonshineScorer,
     default_model_dir,
 )
-from by_your_command.offline.tokenizer import END, FIRST_BYTE, SPACE, Tokenizer
+from by_your_command.local_speech.tokenizer import END, FIRST_BYTE, SPACE, Tokenizer
 
 Synthesize = Callable[[str, str], bytes]
 FORMS = ["move back", "move forward", "reach", "reach left", "look up", "lookup"]

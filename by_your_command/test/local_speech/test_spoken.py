@@ -8,8 +8,8 @@ import pytest
 
 from by_your_command.commands.grammar import CommandGrammar
 from by_your_command.commands.vocabulary import ModifierKind, ModifierUse, load_vocabulary
-from by_your_command.offline.language_model import GarbageWeights, arpa_model, jsgf_grammar
-from by_your_command.offline.spoken import (
+from by_your_command.local_speech.language_model import GarbageWeights, arpa_model, jsgf_grammar
+from by_your_command.local_speech.spoken import (
     RecognitionKind,
     SpokenVocabularyConfig,
     build_spoken_forms,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from by_your_command.offline.asking import Verbs, inflections, not_asked_for
+from by_your_command.local_speech.asking import Verbs, inflections, not_asked_for
 
 VERBS = Verbs(frozenset(("move", "turn", "look", "follow", "stop", "wake", "pan", "reach")))
 

@@ -13,11 +13,11 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from by_your_command.offline.acceptance import AcceptLimits
-from by_your_command.offline.moonshine import FormScore
-from by_your_command.offline.recognizer import Evidence, OfflineRecognizer, Rejection
-from by_your_command.offline.rescoring import Alignment, Candidate, Rescored, rescore
-from by_your_command.offline.spoken import RecognitionKind, SpokenForm
+from by_your_command.local_speech.acceptance import AcceptLimits
+from by_your_command.local_speech.moonshine import FormScore
+from by_your_command.local_speech.recognizer import Evidence, OfflineRecognizer, Rejection
+from by_your_command.local_speech.rescoring import Alignment, Candidate, Rescored, rescore
+from by_your_command.local_speech.spoken import RecognitionKind, SpokenForm
 
 RATE = 16000
 Synthesize = Callable[[str, str], bytes]
@@ -218,7 +218,7 @@ def test_loud_noise_is_decoded_and_rejected(recognizer: OfflineRecognizer) -> No
 @pytest.mark.unit
 def test_a_bare_grammar_forces_chat_into_a_command(synthesize: Synthesize) -> None:
     """Why the garbage model exists: the baseline turns this chat line into a command."""
-    from by_your_command.offline.recognizer import RecognizerConfig, Search
+    from by_your_command.local_speech.recognizer import RecognizerConfig, Search
 
     bare = OfflineRecognizer(dataclasses.replace(RecognizerConfig(), search=Search.BARE_GRAMMAR))
     result = bare.recognize(synthesize("what a lovely morning", "en-us+f3"), RATE)
@@ -498,7 +498,7 @@ def test_the_verified_form_is_taken_only_if_it_ends_where_the_speech_ends(
 ) -> None:
     """ "he reached the top": pocketsphinx's grammar and filler model both heard "sleep", and
     Moonshine's "sleep" ends early (the model heard more words)."""
-    from by_your_command.offline.moonshine import Analysis, Transcript
+    from by_your_command.local_speech.moonshine import Analysis, Transcript
 
     sleep = _form(recognizer, "sleep")
     scorer = recognizer._scorer
@@ -541,8 +541,8 @@ def test_a_noisy_utterance_is_judged_by_the_noisy_limits(
 ) -> None:
     """Noise raises every regret: a form at regret 4 is too far from clean speech, not from speech
     under noise (acceptance.py)."""
-    from by_your_command.offline.acceptance import Acceptance, AcceptLimits
-    from by_your_command.offline.moonshine import Analysis, Transcript
+    from by_your_command.local_speech.acceptance import Acceptance, AcceptLimits
+    from by_your_command.local_speech.moonshine import Analysis, Transcript
 
     acceptance = Acceptance(
         clean=AcceptLimits(moonshine_alone_regret=3.0), noisy=AcceptLimits(moonshine_alone_regret=4.5)

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from by_your_command.offline.acceptance import Acceptance, AcceptLimits
+from by_your_command.local_speech.acceptance import Acceptance, AcceptLimits
 
 
 @pytest.mark.unit

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 from by_your_command.commands.grammar import Command, CommandGrammar
 from by_your_command.commands.vocabulary import CommandSpec, ModifierKind, ModifierUse, Vocabulary
-from by_your_command.offline.tool_phrases import ToolPhrase
+from by_your_command.local_speech.tool_phrases import ToolPhrase
 from by_your_command.vad.config import DEFAULT_SLEEP_PHRASES, DEFAULT_WAKE_PHRASES
 
 _WORD = re.compile(r"^[a-z]+(?:'[a-z]+)?$")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from by_your_command.audio.pcm import resample
-from by_your_command.offline.recognizer import OfflineRecognizer
+from by_your_command.local_speech.recognizer import OfflineRecognizer
 
 
 @pytest.fixture(scope="module")
