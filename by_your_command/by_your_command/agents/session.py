@@ -11,7 +11,6 @@ the runtime then closes the session. Billing runs from the start of connect to t
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 from collections import deque
 from collections.abc import Callable
@@ -116,6 +115,10 @@ class SessionTimeouts:
     close_s: float
 
 
+# Tasks of closed sessions that outlived their close (kept referenced until they end).
+_LEFT_RUNNING: set[asyncio.Task[None]] = set()
+
+
 class Session:
     def __init__(
         self,
@@ -164,17 +167,38 @@ class Session:
         self._closed = True
         for task in self._tasks:
             task.cancel()
-        for task in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await task
+        await self._bounded(list(self._tasks), "its tasks")
         if self.started_at is not None:
-            try:
-                await asyncio.wait_for(self.provider.close(), self._timeouts.close_s)
-            except Exception as error:  # a close that fails still ends our billing view
-                log.warning("session %d: provider close failed: %r", self.serial, error)
+            closing = asyncio.create_task(self.provider.close(), name=f"session {self.serial} close")
+            await self._bounded([closing], "the provider's close")
+            if closing.done() and not closing.cancelled() and closing.exception() is not None:
+                # a close that fails still ends our billing view
+                log.warning("session %d: provider close failed: %r", self.serial, closing.exception())
         if self.opened_at is None or self.started_at is None:
             return 0.0  # never connected: nothing billed
         return self._clock.now() - self.started_at
+
+    async def _bounded(self, tasks: list[asyncio.Task[None]], what: str) -> None:
+        """Wait at most close_s for `tasks`, never longer: a task that ignores its cancellation (a
+        library's close handshake) must not hold the scheduler. One still running is cancelled,
+        kept referenced until it ends, and logged."""
+        if not tasks:
+            return
+        _, pending = await asyncio.wait(tasks, timeout=self._timeouts.close_s)
+        for task in tasks:
+            if task.done() and not task.cancelled():
+                task.exception()  # retrieved: reported by the caller or not at all, never "never retrieved"
+        for task in pending:
+            task.cancel()
+            _LEFT_RUNNING.add(task)
+            task.add_done_callback(_LEFT_RUNNING.discard)
+        if pending:
+            log.warning(
+                "session %d: %s did not end within %.1f s; left to finish on its own",
+                self.serial,
+                what,
+                self._timeouts.close_s,
+            )
 
     # --- tasks -------------------------------------------------------------------------------
 

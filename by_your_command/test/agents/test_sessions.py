@@ -303,3 +303,42 @@ def test_a_slow_bridge_never_delays_an_interruption_and_the_cut_audio_is_not_sen
         assert 0 < len(sent) < 10  # what was still queued when the reply was cut never went out
 
     run_virtual(scenario())
+
+
+def test_a_provider_close_that_ignores_its_cancellation_does_not_hold_the_agent() -> None:
+    """A library's close handshake that goes on after its timeout (it swallows the cancellation):
+    the session is closed within close_timeout_s all the same, and the next question is answered
+    at once, not after the library is done."""
+
+    async def scenario() -> None:
+        def stubborn_first_close(provider: FakeProvider, index: int) -> None:
+            if index > 0:
+                return
+            plain_close = provider.close
+
+            async def close() -> None:
+                await plain_close()
+                try:
+                    await asyncio.sleep(60.0)
+                except asyncio.CancelledError:
+                    await asyncio.sleep(60.0)  # finishes its handshake regardless
+
+            provider.close = close  # type: ignore[method-assign]
+
+        factory = FakeFactory(
+            spoken_reply("r1", 0.2), spoken_reply("r2", 0.2), configure=stubborn_first_close
+        )
+        config = AgentConfig(pause_timeout_s=2.0, close_timeout_s=3.0)
+        async with running_agent(config, factory) as agent:
+            await speak(agent.port, 1, seconds=0.3)
+            await asyncio.sleep(6.0)  # the pause closed it (its close hangs in the library)
+            loop = asyncio.get_running_loop()
+            asked_at = loop.time()
+            await speak(agent.port, 2, seconds=0.3)
+            await asyncio.sleep(3.0)
+            answered = [at for at, kind, _ in agent.port.published if kind == "text"]
+            await agent.stop()
+        assert len(answered) == 2 and answered[1] - asked_at < 2.0
+        assert [s.close_reason for s in agent.port.sessions()][0].startswith("pause")
+
+    run_virtual(scenario())
