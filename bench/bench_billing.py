@@ -13,6 +13,10 @@ playback, per exchange), the goal (<= 1.1 x conversation + 2 s per exchange) and
 measured in the same run, no pause cycling (one session, closed only by the rotation before the
 provider's 60-minute limit).
 
+GPT-Live (billed every second of open session, issue 36) runs the runtime's full-duplex path with a
+sweep of pauses around agent_gpt_live.yaml's (1, 2, 3, 5, 10 s and the configured one), its goal
+(<= 1.2 x conversation + 3 s per conversation) and its own no-cycling baseline.
+
     scripts/run.sh python bench/bench_billing.py
 """
 
@@ -48,6 +52,8 @@ NEVER_S = 2 * HOUR_S  # baseline: no cycling within the hour
 # GPT-Live bills every second of open session (issue 36): <= 1.2 x conversation + 3 s per conversation.
 GPT_LIVE_GOAL_RATIO = 1.2
 GPT_LIVE_GOAL_S_PER_CONVERSATION = 3.0
+GPT_LIVE_PAUSES_S = (1.0, 2.0, 3.0, 5.0, 10.0)  # swept with agent_gpt_live.yaml's own pause
+GPT_LIVE_USD_PER_HOUR = 3.0
 
 
 @dataclass(frozen=True)
@@ -152,32 +158,43 @@ async def hour(pause_s: float, duplex: bool = False) -> Result:
     return Result(pause_s, billed, conversation_s, len(sessions), completed)
 
 
+def gpt_live_goal_s(conversation_s: float) -> float:
+    return GPT_LIVE_GOAL_RATIO * conversation_s + GPT_LIVE_GOAL_S_PER_CONVERSATION * EXCHANGES
+
+
+def gpt_live_figure(result: Result, baseline: Result, configured_pause_s: float) -> dict[str, Any]:
+    """One GPT-Live JSON figure: a swept pause, or (result is baseline) no pause cycling."""
+    goal_s = gpt_live_goal_s(result.conversation_s)
+    is_baseline = result is baseline
+    return {
+        "bench": "agent_billing",
+        "figure": f"gpt_live_billed_session_s_per_hour{'_without_cycling' if is_baseline else ''}",
+        "pause_timeout_s": None if is_baseline else result.pause_s,
+        "configured": not is_baseline and result.pause_s == configured_pause_s,  # agent_gpt_live.yaml's
+        "sessions": result.sessions,
+        "turns_completed": result.turns_completed,
+        "billed_s": round(result.billed_s, 1),
+        "conversation_s": round(result.conversation_s, 1),
+        "billed_ratio_vs_conversation": round(result.billed_s / result.conversation_s, 3),
+        "overhead_s_per_conversation": round((result.billed_s - result.conversation_s) / EXCHANGES, 2),
+        "goal_s": round(goal_s, 1),
+        "meets_goal": result.billed_s <= goal_s,
+        "cost_usd_at_3_per_hour": round(result.billed_s / HOUR_S * GPT_LIVE_USD_PER_HOUR, 3),
+        "baseline_billed_s": round(baseline.billed_s, 1),
+        "baseline_cost_usd": round(baseline.billed_s / HOUR_S * GPT_LIVE_USD_PER_HOUR, 3),
+    }
+
+
 def main() -> int:
     turns = sum(len(e.turns) for e in exchanges())
     baseline = run_virtual(hour(NEVER_S), deadline_s=2 * HOUR_S)
     results = [run_virtual(hour(pause), deadline_s=2 * HOUR_S) for pause in PAUSES_S]
     live_pause = load_app_config("agent_gpt_live.yaml").agent.pause_timeout_s
-    live = run_virtual(hour(live_pause, duplex=True), deadline_s=2 * HOUR_S)
-    live_goal = GPT_LIVE_GOAL_RATIO * live.conversation_s + GPT_LIVE_GOAL_S_PER_CONVERSATION * EXCHANGES
-    print(
-        json.dumps(
-            {
-                "bench": "agent_billing",
-                "figure": "gpt_live_billed_session_s_per_hour",
-                "pause_timeout_s": live_pause,
-                "sessions": live.sessions,
-                "turns_completed": live.turns_completed,
-                "billed_s": round(live.billed_s, 1),
-                "conversation_s": round(live.conversation_s, 1),
-                "billed_ratio_vs_conversation": round(live.billed_s / live.conversation_s, 3),
-                "goal_s": round(live_goal, 1),
-                "meets_goal": live.billed_s <= live_goal,
-                "cost_usd_at_3_per_hour": round(live.billed_s / 3600 * 3.0, 3),
-                "baseline_billed_s": round(baseline.billed_s, 1),
-                "baseline_cost_usd": round(baseline.billed_s / 3600 * 3.0, 3),
-            }
-        )
-    )
+    live_pauses = sorted({*GPT_LIVE_PAUSES_S, live_pause})
+    live = [run_virtual(hour(pause, duplex=True), deadline_s=2 * HOUR_S) for pause in live_pauses]
+    live_baseline = run_virtual(hour(NEVER_S, duplex=True), deadline_s=2 * HOUR_S)
+    for result in (*live, live_baseline):
+        print(json.dumps(gpt_live_figure(result, live_baseline, live_pause)))
     rows = []
     for result in (*results, baseline):
         goal_s = 1.1 * result.conversation_s + 2.0 * EXCHANGES
@@ -219,14 +236,22 @@ def main() -> int:
             f"{result.billed_s / result.conversation_s:6.2f} {overhead:7.2f}  {result.sessions}"
             f"{'' if result.billed_s <= goal_s else '  (over the goal)'}"
         )
-    label = f"gpt_live, pause {live_pause:g} s"
-    overhead = (live.billed_s - live.conversation_s) / EXCHANGES
-    print(
-        f"{label:30s} {live.billed_s:9.1f} {live.conversation_s:7.1f} {live_goal:7.1f} "
-        f"{live.billed_s / live.conversation_s:6.2f} {overhead:7.2f}  {live.sessions}"
-        f"{'' if live.billed_s <= live_goal else '  (over the goal)'}  (goal 1.2 x talk + 3 s each)"
-    )
-    return 0 if all(r.turns_completed == turns for r in (*results, baseline, live)) else 1
+    print()
+    header = f"{'gpt_live (goal 1.2 x talk + 3 s each)':38s} {'billed s':>9s} {'talk s':>7s} {'goal s':>7s}"
+    print(f"{header}  sessions")
+    for result in (*live, live_baseline):
+        if result is live_baseline:
+            label = "no cycling (baseline)"
+        else:
+            configured = " (agent_gpt_live.yaml)" if result.pause_s == live_pause else ""
+            label = f"pause {result.pause_s:g} s{configured}"
+        goal_s = gpt_live_goal_s(result.conversation_s)
+        over = "" if result.billed_s <= goal_s else f"  (over the goal by {result.billed_s - goal_s:.1f} s)"
+        print(
+            f"{label:38s} {result.billed_s:9.1f} {result.conversation_s:7.1f} {goal_s:7.1f}  "
+            f"{result.sessions}{over}"
+        )
+    return 0 if all(r.turns_completed == turns for r in (*results, baseline, *live, live_baseline)) else 1
 
 
 if __name__ == "__main__":
