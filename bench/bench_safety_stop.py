@@ -6,8 +6,8 @@ interleaved in time order). Scenarios:
 
   over_reply  the user says a stop phrase while the robot speaks (its echo -20 dBFS RMS at the mic,
               the user -26 dBFS: a robot near its mic is louder there than a user a metre away)
-              gate: the raw mic, cancelled in the spotter (AEC3 on audio_played); aec: the mic after
-              the echo_suppressor's AEC3 (what `audio_filtered` carries)
+              gate: the raw mic, cancelled in the spotter (aec engine, audio_played); aec: the mic after
+              the echo_suppressor (what `audio_filtered` carries)
               baseline: gate with the spotter's echo cancellation off (the raw mic)
   quiet       a stop in a quiet room (asleep / muted: the spotter is fed the same in every state)
   own_reply   the robot's own replies saying stop / stopping / halt, played into the mic: false stops
@@ -127,6 +127,10 @@ def compose(
     reply_s = len(reply) / RATE if reply is not None else 0.0
     user_s = user_at_s + len(user) / RATE if user is not None else 0.0
     total = int(RATE * (0.5 + max(reply_s, user_s) + 1.5))
+    # Whole blocks: the next trial continues the timeline without a gap. (A dropped partial block
+    # jumped the mic stamps by 2-30 ms; a jump under the echo controller's 20 ms tolerance shifted
+    # the mic against the reference and the robot's voice passed uncancelled through the next reply.)
+    total += -total % BLOCK
     played = np.zeros(total, dtype=np.int16)
     mic = np.random.default_rng(total).normal(0, 10, total)  # -70 dBFS room noise
     if reply is not None:

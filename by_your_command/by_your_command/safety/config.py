@@ -59,7 +59,9 @@ class StopConfig:
     )
     cancel_echo: bool = field(
         default=True,
-        metadata={"help": "echo_gate mode: cancel the robot's voice (AEC3, audio_played) before spotting"},
+        metadata={
+            "help": "echo_gate mode: cancel the robot's voice (aec engine, audio_played) before spotting"
+        },
     )
 
     def __post_init__(self) -> None:

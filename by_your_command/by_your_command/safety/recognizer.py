@@ -10,11 +10,15 @@ opinion (`KeywordSpotter`): a short "stop" the model heard as "saw" or "show" (e
 still stops when the keyphrase search heard it and the transcript holds no negation or near miss.
 
 `StopMatcher` judges a transcript: a whole stop phrase ("it" alone is not "stop it"), no
-negation, and at most `max_other_words` other words (filler words not counted): lenient on
-purpose, a missed stop is worse than a spurious one. That is also why the keyphrase override
-stays although it takes some one-syllable coughs ("ha" heard "car") for a stop: without it the
-bench's espeak stops lost ~3 % (4 of 130), and coughs still stopped the robot through the model
-writing "halt" for them (19 of 78 without it, 24 with it).
+negation before it ("don't stop"; one after it takes nothing back), and at most
+`max_other_words` other words (filler words not counted): lenient on purpose, a missed stop is
+worse than a spurious one. That is also why the keyphrase override stays although it takes some
+one-syllable coughs ("ha" heard "car") for a stop: without it the bench's espeak stops lost ~3 %
+(4 of 130), and coughs still stopped the robot through the model writing "halt" for them (19 of
+78 without it, 24 with it).
+
+The stop words also get British pronunciations (`ACCENT_VARIANTS`) on the microphone's decoder,
+not on the robot's reference (there they found "stop" in "red cup").
 """
 
 from __future__ import annotations
@@ -49,6 +53,25 @@ NEAR_MISSES = "stopping stopwatch bus believing freezer nonstop".split()
 # Garbage words a short stop is mistaken for (espeak voices, bench/bench_safety_stop.py): left out
 # of the model, so that a clipped "stop" still goes to "stop". The cost: "I saw" alone may stop.
 CONFUSABLE = frozenset("saw tell still told old all both so open talk over going".split())
+# Accents the en-us dictionary lacks: the British short o of "stop" and "halt" (/ɒ/: "stop" in
+# en-gb voices was heard as "call" or "don't"), as extra pronunciations of the stop words.
+ACCENT_VARIANTS: dict[str, tuple[str, ...]] = {"stop": ("S T AO P",), "halt": ("HH AA L T",)}
+
+
+def with_accents(dictionary: dict[str, list[str]], words: Iterable[str]) -> dict[str, list[str]]:
+    """`dictionary` (word -> its lines) with `ACCENT_VARIANTS` of `words` added as "word(n)" lines."""
+    out = dict(dictionary)
+    for word in words:
+        if word not in out:
+            continue
+        lines = list(out[word])
+        known = {line.split(" ", 1)[1].strip() for line in lines}
+        lines += [
+            f"{word}({len(lines) + 1 + n}) {phones}"
+            for n, phones in enumerate(p for p in ACCENT_VARIANTS.get(word, ()) if p not in known)
+        ]
+        out[word] = lines
+    return out
 
 
 @dataclass(frozen=True)
@@ -72,8 +95,6 @@ class StopMatcher:
         """The stop phrases the transcript holds, if it is a stop (else ()): whole phrases only ("it"
         alone is not "stop it"), no negation, at most `max_other_words` words outside them."""
         words = [w for w in words_of(text) if w not in FILLER_WORDS]
-        if any(w.replace("'", "") in NEGATIONS or w.endswith("n't") for w in words):
-            return ()
         found, covered = [], [False] * len(words)
         for phrase in sorted(self.phrases, key=lambda p: -len(p.split())):  # "stop it" before "stop"
             size = len(phrase.split())
@@ -82,19 +103,28 @@ class StopMatcher:
                     found.append(phrase)
                     covered[start : start + size] = [True] * size
         others = covered.count(False)
-        return tuple(found) if found and others <= self._max_other else ()
+        if not found or others > self._max_other:
+            return ()
+        # A negation before the stop negates it ("don't stop"); after it, it is no taking back
+        # ("stop, don't!"), and a second "stop" whose /s/ the echo guard took is heard "don't".
+        first = covered.index(True)
+        return () if any(_negation(w) for w in words[:first]) else tuple(found)
 
     def may_be_stop(self, text: str) -> bool:
         """One word, no negation, no near miss: a keyphrase hit may stand. (Nothing heard at all is
         residual echo or noise, where the keyphrase search fires on its own; two words are a short
         command: "wake up", heard "we cup", fired the keyphrase search in the demo.)"""
         words = [w for w in words_of(text) if w not in FILLER_WORDS]
-        if any(w.replace("'", "") in NEGATIONS or w.endswith("n't") or w in NEAR_MISSES for w in words):
+        if any(_negation(w) or w in NEAR_MISSES for w in words):
             return False
         return len(words) == 1
 
     def stop_like(self, word: str) -> bool:
         return word in self.words and len(word) >= 4 or word.startswith(self._stems)
+
+
+def _negation(word: str) -> bool:
+    return word.replace("'", "") in NEGATIONS or word.endswith("n't")
 
 
 class KeywordSpotter:
@@ -106,10 +136,13 @@ class KeywordSpotter:
 
         dictionary = _pronunciations(Path(Config()["dict"]))
         words = sorted({w for p in phrases for w in words_of(p) if len(w) >= 4 and w in dictionary})
+        # The keyphrase search takes a word's first pronunciation only: each one is its own key.
+        keyed = with_accents(dictionary, words)
+        lines = [f"{w}_{n} {line.split(' ', 1)[1]}" for w in words for n, line in enumerate(keyed[w])]
         with tempfile.TemporaryDirectory(prefix="byc_kws_") as tmp:
             keys, lexicon = Path(tmp) / "stop.kws", Path(tmp) / "stop.dict"
-            keys.write_text("".join(f"{w} /{threshold:g}/\n" for w in words), encoding="utf-8")
-            lexicon.write_text("".join(f"{e}\n" for w in words for e in dictionary[w]), encoding="utf-8")
+            keys.write_text("".join(f"{k.split()[0]} /{threshold:g}/\n" for k in lines), encoding="utf-8")
+            lexicon.write_text("".join(f"{line}\n" for line in lines), encoding="utf-8")
             self._decoder = Decoder(samprate=SAMPLE_RATE, loglevel="FATAL", kws=str(keys), dict=str(lexicon))
         self._open = False
         self.hit = False
@@ -137,10 +170,16 @@ class StopRecognizer:
     """Streaming decoder of one utterance at a time (16 kHz int16). Not thread-safe."""
 
     def __init__(
-        self, phrases: Iterable[str], streaming: bool = False, phrase_weight: int = PHRASE_WEIGHT
+        self,
+        phrases: Iterable[str],
+        streaming: bool = False,
+        phrase_weight: int = PHRASE_WEIGHT,
+        accents: bool = True,
     ) -> None:
         phrases = [" ".join(words_of(p)) for p in phrases]
         dictionary = pronunciations()  # RecognizerUnavailableError without pocketsphinx
+        if accents:
+            dictionary = with_accents(dictionary, {w for p in phrases for w in p.split()})
         unknown = sorted({w for p in phrases for w in p.split() if w not in dictionary})
         if unknown:
             raise ValueError(

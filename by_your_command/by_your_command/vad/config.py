@@ -139,7 +139,9 @@ class VadConfig:
     )
     stop_cancel_echo: bool = field(
         default=StopConfig.cancel_echo,
-        metadata={"help": "echo_gate: the spotter hears the mic with the robot's voice cancelled (AEC3)"},
+        metadata={
+            "help": "echo_gate: the spotter hears the mic with the robot's voice cancelled (aec engine)"
+        },
     )
 
     def __post_init__(self) -> None:

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from audio_io.synthetic_room import espeak, trim_silence
+from audio_io.synthetic_room import Room, at_level, espeak, trim_silence
 
 from by_your_command.audio.pcm import Int16Array
 from by_your_command.safety.config import StopConfig
-from by_your_command.safety.recognizer import StopMatcher, StopRecognizer
+from by_your_command.safety.recognizer import StopMatcher, StopRecognizer, with_accents
 from by_your_command.safety.spotter import Detection, StopSpotter
 from by_your_command.vad.config import VadConfig
 
@@ -121,3 +121,48 @@ def test_a_stop_phrase_must_be_whole() -> None:
     assert not matcher.is_stop("it him") and not matcher.is_stop("it")  # "it" is not "stop it"
     assert matcher.phrases_in("stop it") == ("stop it",) and matcher.is_stop("stop it now")
     assert matcher.is_stop("okay stop") and matcher.is_stop("stop eat")  # one slip still stops
+
+
+@pytest.mark.unit
+def test_a_british_stop_is_heard_as_stop(spotter_config: StopConfig) -> None:
+    # The en-us dictionary has only "S T AA P": the British short o, a metre away in a room, was
+    # heard as "halt" here (and as "call" or "don't" in the benchmark's rooms).
+    word = trim_silence(espeak("stop", "en-gb", RATE), RATE)
+    near = Room(delay_ms=5, gain=0.8, reverb_gain=0.2).echo(at_level(word, -26.0), RATE)
+    quiet = np.zeros(RATE // 2, dtype=np.int16)
+    found = feed(StopSpotter(spotter_config, cancel_echo=False), np.concatenate([quiet, near, quiet]))
+    assert [d.text for d in found] == ["stop"]
+
+
+@pytest.mark.unit
+def test_accent_variants_are_extra_pronunciations_of_the_stop_words() -> None:
+    dictionary = {"stop": ["stop S T AA P"], "halt": ["halt HH AO L T"], "it": ["it IH T"]}
+    accented = with_accents(dictionary, ["stop", "halt", "it", "blorptastic"])
+    assert accented["stop"] == ["stop S T AA P", "stop(2) S T AO P"]
+    assert accented["halt"] == ["halt HH AO L T", "halt(2) HH AA L T"]
+    assert accented["it"] == ["it IH T"] and "blorptastic" not in accented
+    assert dictionary["stop"] == ["stop S T AA P"]  # the shared dictionary is not changed
+
+
+@pytest.mark.unit
+def test_a_negation_only_before_the_stop_takes_it_back() -> None:
+    matcher = StopMatcher(["stop", "halt", "stop it", "stop stop"], max_other_words=1)
+    assert not matcher.is_stop("don't stop") and not matcher.is_stop("not stop it")
+    # After the stop it takes nothing back ("stop, don't!"); over the robot's voice a second
+    # "stop" clipped by the echo guard came out "don't" or "not".
+    assert matcher.is_stop("stop don't") and matcher.is_stop("stop not") and matcher.is_stop("stop it don't")
+    assert not matcher.may_be_stop("don't")
+
+
+@pytest.mark.unit
+def test_the_spotters_echo_suppressor_is_gentler_than_the_echo_suppressor_nodes(
+    spotter_config: StopConfig,
+) -> None:
+    # At the echo_suppressor's 6 dB margin the residual suppressor took the start of a stop said
+    # over the robot's voice (bench_safety_stop gate, tuned voices: 90.0 % heard; 96.2 % at 3 dB).
+    from by_your_command.audio.echo import EchoConfig
+
+    echo = StopSpotter(spotter_config, cancel_echo=True)._echo
+    assert echo is not None
+    assert echo.config.mode == "aec"
+    assert echo.config.echo_guard_margin_db < EchoConfig().echo_guard_margin_db
