@@ -700,7 +700,7 @@ class AgentRuntime:
         if self._session is not None:
             self._session.turns += 1
         if self._turn_out is None and self._session_is_old_conversation():
-            await self._leave_old_conversation(self._end.recycling or "new conversation")
+            await self._close_session_now(self._end.recycling or "new conversation")
         if self._waiting and self._turn_out is None and self._reconnect_at is None:
             self._commit(self._waiting.popleft())
         if self._idle(now) and (self._end.asked or self._end.rotation_due(self._session, now)):
@@ -1691,21 +1691,17 @@ class AgentRuntime:
         if self._session is None:
             return
         if self._turn_out is None:
-            await self._leave_old_conversation(f"new conversation ({why})")
+            await self._close_session_now(f"new conversation ({why})")
         else:  # a reply is being made: it ends first, then the session goes (_finish_turn)
             self._end.recycle(f"new conversation ({why})", self._clock.now(), replace=True)
 
     def _session_is_old_conversation(self) -> bool:
         return self._session is not None and self._session_conversation != self.context.serial
 
-    async def _leave_old_conversation(self, reason: str) -> None:
-        """Close the old conversation's session now, even while its last reply still plays, so the
-        old server-side history never answers what the user says from here on."""
-        await self._close_session_now(reason)
-
     async def _close_session_now(self, reason: str) -> None:
-        """Close the session now: what the user says from here on goes to a new session (and only
-        from its kept audio, which the old session may have heard too)."""
+        """Close the session now, even while its last reply still plays (an old conversation's, or
+        one that took a stop as a request), so its server-side history never answers what the user
+        says from here on: that goes to a new session, from its kept audio."""
         for turn in self._waiting:
             turn.deferred = True
         if self._turn_in is not None and not self._turn_in.held:
