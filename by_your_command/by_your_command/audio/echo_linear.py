@@ -13,7 +13,8 @@ as loud as the user at the mic, the user came out of AEC3 correlating ~0.6 with 
   along than the NLMS it replaced after 3-8 s). Two copies: a background filter adapts on every
   block; the foreground filter, whose output is used, takes the background's coefficients when
   they cancel better and no double talk is detected (the output jumps against the mic above
-  what echo alone leaves).
+  what echo alone leaves). An output louder than the mic is no voice but a changed echo path:
+  learning restarts as at the start (from the current coefficients) instead of freezing.
   Its output is mic minus the echo estimate: the user's voice is not touched.
 - ResidualEchoSuppressor: per frequency bin, the echo the filter leaves is estimated from the
   filter's echo estimate, from the reference's envelope (for what the filter has not learned
@@ -47,6 +48,10 @@ DOUBLE_TALK_STEP = 0.25  # the background's step in double talk, relative to the
 DOUBLE_TALK_CREEP_DB = 0.02  # the detector's tracker creeps up this much per double-talk block
 COMPARE_SMOOTHING = 0.3  # background vs foreground error energy: weight of the newest block
 COPY_RATIO = 1.0  # background error below the foreground's (smoothed): copy it over
+# The output louder than the mic (by this much, in this many blocks more than not): no voice does
+# that (it adds to the echo), an echo path change does (the filter subtracts the wrong echo).
+PATH_CHANGE_DB = 1.0
+PATH_CHANGE_BLOCKS = 20
 RESET_RATIO = 4.0  # background error this far above the foreground's (+6 dB): it diverged, reset
 RESIDUAL_BANDS = 16  # the residual's shares of the estimate and of the reference, learned per band
 RESIDUAL_INITIAL_DB = 0.0  # before learning: residual as loud as the estimate
@@ -72,6 +77,7 @@ class LinearEchoStats:
     foreground_updates: int = 0  # background coefficients copied to the output filter
     background_resets: int = 0  # background diverged (double talk) and restarted from the foreground
     double_talk_blocks: int = 0  # blocks judged double talk: slow background, no copy to the output
+    path_changes: int = 0  # output louder than the mic (the echo path changed): learning restarted
 
 
 class LinearEchoCanceller:
@@ -92,6 +98,7 @@ class LinearEchoCanceller:
         self.echo_left_db = 0.0  # output vs mic in single talk (-ERLE), learned
         self._error_energy = 0.0
         self._hold = 0  # blocks double talk is still assumed
+        self._louder_run = 0  # blocks with the output louder than the mic, less those without
         self._mic_energy = 0.0
         self._up_db = ECHO_LEFT_STEP_DB * ECHO_LEFT_QUANTILE / (1 - ECHO_LEFT_QUANTILE)
         self._fft = 2 * block
@@ -182,6 +189,16 @@ class LinearEchoCanceller:
         self._error_energy = (1 - a) * self._error_energy + a * float(np.dot(error, error))
         self._mic_energy = (1 - a) * self._mic_energy + a * float(np.dot(mic, mic))
         ratio = 10 * math.log10((self._error_energy + 1e-12) / (self._mic_energy + 1e-12))
+        self._louder_run = self._louder_run + 1 if ratio > PATH_CHANGE_DB else max(0, self._louder_run - 1)
+        if self._louder_run >= PATH_CHANGE_BLOCKS:
+            # The echo path changed (the robot moved, a stamp shifted within tolerance): as at
+            # the start, how much echo is left is unknown (so nothing counts as double talk
+            # yet) and the background learns as if new; a converged one would take seconds.
+            self.stats.path_changes += 1
+            self._louder_run = 0
+            self.echo_left_db = 0.0
+            np.maximum(self._uncertainty, INITIAL_UNCERTAINTY, out=self._uncertainty)
+            self._hold = 0
         if ratio > self.echo_left_db + self._margin_db:
             self._hold = DOUBLE_TALK_HOLD_BLOCKS  # the user's quieter syllables come next
         if self._hold > 0:
@@ -254,6 +271,12 @@ class ResidualEchoSuppressor:
         self._envelope = np.zeros(bins)  # reference power per bin, held with the tail's decay
         self._residual = np.zeros(bins)
         self.last_gain: FloatArray = np.ones(bins)
+
+    def relearn(self) -> None:
+        """The echo path changed: what was learned of the residual no longer holds."""
+        self.residual_db[:] = RESIDUAL_INITIAL_DB
+        self.coupling_db[:] = COUPLING_INITIAL_DB
+        self._active_blocks = 0
 
     def process(
         self,
@@ -376,8 +399,11 @@ class LinearAec:
         ref = to_float(reference)
         loud = float(np.dot(ref, ref)) > REFERENCE_FLOOR * len(ref)
         self._quiet_frames = 0 if loud else self._quiet_frames + 1
+        path_changes = self.canceller.stats.path_changes
         error = self.canceller.process(to_float(mic), ref)
         if self.suppressor is not None:
+            if self.canceller.stats.path_changes != path_changes:
+                self.suppressor.relearn()
             active = self._quiet_frames < self._span_frames
             error = self.suppressor.process(
                 error,

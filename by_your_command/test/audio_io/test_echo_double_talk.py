@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from audio_io.synthetic_room import Conversation, Room, conversation, energy_db
+from audio_io.synthetic_room import Conversation, Room, conversation, energy_db, recorded_speech
 from audio_io.test_echo import ROBOT_ROOM, utterance_starts
 
 from by_your_command.audio.echo import EchoConfig, EchoController
@@ -250,3 +250,59 @@ def test_bad_double_talk_config_is_a_clear_error(kwargs: dict[str, object]) -> N
 def test_the_old_guard_distorted_the_same_double_talk(equal_level_talk: Conversation) -> None:
     """The reference point the tests above improve on: AEC3 with the whole-frame guard."""
     assert min(near_end_correlations(equal_level_talk, OLD)) < 0.8
+
+
+@pytest.mark.unit
+def test_the_canceller_follows_an_echo_path_change_but_not_a_voice() -> None:
+    """The echo path moves by 5 ms mid-reply (a turned head, a stamp off within tolerance): the
+    output filter, which then adds echo, relearns within seconds instead of freezing as if the
+    user talked; a user as loud as the echo over the same reply is no path change."""
+    rng = np.random.default_rng(6)
+    seconds = 12
+    far = 0.1 * rng.standard_normal(seconds * RATE)
+    before = to_float(Room(delay_ms=20, reverb_ms=60, noise_dbfs=-90.0).echo(float_to_int16(far), RATE))
+    after = to_float(Room(delay_ms=25, reverb_ms=60, noise_dbfs=-90.0).echo(float_to_int16(far), RATE))
+    echo = np.concatenate([before[: 5 * RATE], after[5 * RATE :]])
+    canceller = LinearEchoCanceller(block=160, partitions=30, step=1.0, margin_db=6.0)
+    error = cancel(canceller, echo, far)
+    part = slice(9 * RATE, 12 * RATE)
+    assert energy_db(float_to_int16(echo[part])) - energy_db(float_to_int16(error[part])) >= 25.0
+    assert canceller.stats.path_changes >= 1
+
+    near = np.zeros_like(far)
+    near[6 * RATE : 9 * RATE] = 0.1 * rng.standard_normal(3 * RATE)
+    talked_over = LinearEchoCanceller(block=160, partitions=30, step=1.0, margin_db=6.0)
+    cancel(talked_over, before + near, far)
+    assert talked_over.stats.path_changes == 0
+    assert talked_over.stats.double_talk_blocks > 0
+
+
+@pytest.mark.unit
+def test_a_mic_stamp_jump_within_the_tolerance_leaves_the_next_reply_cancelled() -> None:
+    """Two replies; between them the mic loses 10 ms, less than stamp_tolerance_ms, so its
+    timeline goes on unbroken and the mic is 10 ms late against the reference: the next reply
+    still comes out cancelled (it came out at full echo level, frozen as double talk)."""
+    far = recorded_speech(8, RATE)
+    room = Room(delay_ms=3, reverb_ms=60, noise_dbfs=-90.0)  # a speaker next to the mic
+    mic = room.echo(far, RATE)
+    echo = EchoController(LINEAR)
+    clock = T0
+    replies: list[np.ndarray] = []
+    for _ in range(2):
+        echo.set_assistant_speaking(True, clock)
+        out: list[np.ndarray] = []
+        for k in range(0, len(far) // BLOCK * BLOCK, BLOCK):
+            start = clock + k * 1_000_000_000 // RATE
+            echo.add_reference(far[k : k + BLOCK], RATE, 1, start)
+            out += [block.pcm for block in echo.process(mic[k : k + BLOCK], start, start) + echo.drain()]
+        clock += len(far) // BLOCK * BLOCK * 1_000_000_000 // RATE
+        echo.set_assistant_speaking(False, clock)
+        silence = np.zeros(RATE, dtype=np.int16)
+        for k in range(0, RATE, BLOCK):
+            start = clock + k * 1_000_000_000 // RATE
+            out += [block.pcm for block in echo.process(silence[k : k + BLOCK], start, start)]
+        clock += RATE * 1_000_000_000 // RATE + 10_000_000  # 10 ms of mic never arrive
+        replies.append(np.concatenate(out))
+    assert echo.stats.mic_resyncs == 0
+    second = replies[1][3 * RATE : 7 * RATE]
+    assert energy_db(mic[3 * RATE : 7 * RATE]) - energy_db(second) >= 25.0
