@@ -9,7 +9,6 @@ docs/agents.md describes the behaviour; the comments here say why where it is no
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import secrets
 from collections import deque
@@ -23,7 +22,6 @@ from by_your_command.agents.clock import Clock, LoopClock
 from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
 from by_your_command.agents.context import ContextStore
 from by_your_command.agents.delegation import match_tool
-from by_your_command.agents.detections import extract
 from by_your_command.agents.events import (
     AssistantAudio,
     AssistantText,
@@ -63,21 +61,19 @@ from by_your_command.agents.metrics import (
     Counters,
     SessionMetrics,
     SessionOpenedMetrics,
-    ToolCallMetrics,
     TurnMetrics,
 )
 from by_your_command.agents.outbox import Outbox
 from by_your_command.agents.overlap_words import interrupting_words
-from by_your_command.agents.port import DetectionReport, PlayerAction, PortClosed, RobotPort, VoiceChunk
+from by_your_command.agents.port import PlayerAction, PortClosed, RobotPort, VoiceChunk
 from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup, ToolResult, ToolSpec
 from by_your_command.agents.reply_audio import ReplyAudio
+from by_your_command.agents.reply_words import ReplyWords
 from by_your_command.agents.robot_calls import (
-    REPLY_GRACE_S,
-    RobotCall,
     RobotCalls,
-    call_result,
     is_stop_request,
 )
+from by_your_command.agents.robot_runner import LATE_RESULT_NOTE, RobotToolRunner, SendFailed
 from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL, result_json, verdicts_json
 from by_your_command.agents.rotation import ROTATION, SessionEnd
 from by_your_command.agents.session import (
@@ -88,7 +84,6 @@ from by_your_command.agents.session import (
     SendAudio,
     SendImage,
     SendText,
-    SendToolProgress,
     SendToolResults,
     Session,
     SessionEvent,
@@ -103,13 +98,12 @@ from by_your_command.agents.tool_calls import (
     ResponseResults,
     RunRobotTool,
     decide,
-    refusal,
     robot_tool_spec,
 )
 from by_your_command.agents.turn import Turn
 from by_your_command.audio.pcm import StreamResampler
 from by_your_command.net.backoff import backoff_s
-from by_your_command.tools.catalog import Catalog, CatalogError, RobotTool, ToolArgumentError
+from by_your_command.tools.catalog import Catalog, CatalogError, RobotTool
 
 log = logging.getLogger(__name__)
 
@@ -123,11 +117,6 @@ RECENT_CUTS = 64  # cut responses remembered (their late audio and words are dro
 SAFETY_STOP_NOTE = (
     '"{phrase}" (the robot heard this itself and stopped at once: every motion command was '
     'stopped and the reply cut; it said "Stopping.")'
-)
-# What the model reads when a robot action it started ends after its session did (or the call was
-# withdrawn): the call itself is gone, so the result comes as a note, and the model tells the user.
-LATE_RESULT_NOTE = (
-    "(The robot reports: your earlier call {tool}({arguments}) ended: {result}. Tell the user briefly.)"
 )
 # A tool call's command is routed once the provider events queued behind it are handled (a
 # cancellation may be among them), but never held behind more than this many.
@@ -154,18 +143,10 @@ class _Heard:
     covered_bytes: int
 
 
-@dataclass(frozen=True)
-class _SendFailed:
-    """A robot tool's request could not be sent to the bridge."""
-
-    request_id: str
-    error: str
-
-
 _STOP = _Stop()
-_Item = RobotInput | SessionMessage | _Heard | _SendFailed | _Stop
+_Item = RobotInput | SessionMessage | _Heard | SendFailed | _Stop
 # Items the scheduler made itself (or its sessions did): they hold no place in the input backlog.
-_OWN_ITEMS = (SessionOpened, SessionEvent, SessionFailed, _Heard, _SendFailed)
+_OWN_ITEMS = (SessionOpened, SessionEvent, SessionFailed, _Heard, SendFailed)
 
 # pcm (int16 LE) and its rate -> the words heard (the app runs the recogniser on a worker thread)
 Transcriber = Callable[[bytes, int], Awaitable[str]]
@@ -224,11 +205,35 @@ class AgentRuntime:
         self._results = ResponseResults()
         self._catalog = Catalog(())  # the robot's own tools, from `robot_tools` (docs/tools.md)
         self.robot_calls = RobotCalls()
-        self._long_responses: deque[str] = deque(maxlen=RECENT_CUTS)  # responses that started actions
+        self._robot = RobotToolRunner(
+            config.agent_id,
+            self.robot_calls,
+            self._tools,
+            config.tool_verdict_timeout_s,
+            port,
+            self._clock,
+            new_request_id=self._new_request_id,
+            publish=self._publish,
+            post=self._queue.put_nowait,
+            deliver=self._deliver_tool_result,
+            tell_late=lambda note: self._queue_result_turn(-1, (), note),
+            session=lambda: self._session,
+        )
         self._requests = 0  # command requests sent: their ids name this run and this count
         self._provider_backlog = 0  # session messages in the queue, not handled yet
         self._route_deferrals = 0
         self._frames = FrameChoice(config.max_frame_age_s)
+        self._words = ReplyWords(
+            config,
+            self.context,
+            self.counters,
+            self._frames,
+            port,
+            publish=self._publish,
+            now=self._clock.now,
+            was_cut=lambda response_id: response_id in self._cut,
+            old_conversation=self._session_is_old_conversation,
+        )
         self._utterance_ended_at = float("-inf")  # frames kept from before this are stale
         self._outbox = Outbox(config.agent_id, config.publish_timeout_s, self._count_publish_failure)
         self._streams = 0
@@ -422,10 +427,10 @@ class AgentRuntime:
 
     # --- dispatch ----------------------------------------------------------------------------
 
-    async def _handle(self, item: RobotInput | SessionMessage | _Heard | _SendFailed) -> None:
+    async def _handle(self, item: RobotInput | SessionMessage | _Heard | SendFailed) -> None:
         if isinstance(item, (SessionOpened, SessionEvent, SessionFailed)):
             await self._on_session_message(item)
-        elif isinstance(item, (CallReplied, CallFeedback, ToolCatalog, _SendFailed)):
+        elif isinstance(item, (CallReplied, CallFeedback, ToolCatalog, SendFailed)):
             await self._on_robot_tool_input(item)
         elif isinstance(item, _Heard):
             await self._on_heard(item)
@@ -617,7 +622,7 @@ class AgentRuntime:
             self.counters.inputs_invalid += 1
             text = text[:MAX_TEXT_CHARS]
         if is_stop_request(text):  # before any other check: a typed stop is heard asleep too
-            await self._cancel_robot_calls(f"the user said {text[:40]!r}")
+            self._robot.cancel_all(f"the user said {text[:40]!r}")
         if self._attention is not Attention.AWAKE:
             self.counters.ignored_not_awake += 1
             return
@@ -947,7 +952,7 @@ class AgentRuntime:
         reply ends here (nothing more of it is published), the model's memory keeps only what was
         heard, and the conversation says that the user stopped the robot."""
         self.counters.safety_stops += 1
-        await self._cancel_robot_calls(f"the robot heard {stop.phrase[:40]!r}")
+        self._robot.cancel_all(f"the robot heard {stop.phrase[:40]!r}")
         self._drop_stop_utterance(stop.utterance_id)
         answered = self._turn_out
         was_the_request = (
@@ -1057,17 +1062,16 @@ class AgentRuntime:
                 log.info("agent %s: the provider heard no words", self.config.agent_id)
             elif self.config.context_source is ContextSource.OWN:
                 if is_stop_request(event.text):
-                    await self._cancel_robot_calls(f"the user said {event.text.strip()[:40]!r}")
+                    self._robot.cancel_all(f"the user said {event.text.strip()[:40]!r}")
                 if not self._session_is_old_conversation():
                     self.context.add_user_before_reply(event.text, self._clock.now(), self._committed_at)
                 self._publish("prompt_transcript", partial(self._port.publish_transcript, event.text.strip()))
         elif isinstance(event, AssistantTranscript):
             if event.final:
-                rest, _ = await self._take_detections(event.text)
-                await self._assistant_said(rest, event.response_id)
+                self._words.transcript(event.text, event.response_id)
         elif isinstance(event, AssistantText):
             if event.final:
-                await self._on_text_reply(event.text, event.response_id)
+                self._words.text_reply(event.text, event.response_id)
         elif isinstance(event, ToolCall):
             await self._on_tool_call(session, turn, event)
         elif isinstance(event, ToolCallCancelled):
@@ -1119,49 +1123,6 @@ class AgentRuntime:
         if turn is not None and turn.first_audio_at is None:
             turn.first_audio_at = self._clock.now()
 
-    async def _assistant_said(self, text: str, response_id: str) -> None:
-        text = text.strip()
-        if not text:
-            return
-        if self.config.context_source is ContextSource.OWN and not self._session_is_old_conversation():
-            heard = f"{text} [cut off by the user]" if response_id in self._cut else text
-            self.context.add(Role.ASSISTANT, heard, self._clock.now())
-        self._publish("response_text", partial(self._port.publish_text, text))
-
-    async def _on_text_reply(self, text: str, response_id: str) -> None:
-        rest, unreadable = await self._take_detections(text)
-        if self.config.role is not AgentRole.COMMAND:
-            await self._assistant_said(rest, response_id)
-        elif unreadable:  # box JSON we could not read is still no command
-            log.warning(
-                "agent %s: a reply mentions box_2d but holds no readable detection: not routed",
-                self.config.agent_id,
-            )
-        elif rest.strip():
-            self._publish("response_cmd", partial(self._port.publish_cmd, rest.strip()))
-
-    async def _take_detections(self, text: str) -> tuple[str, bool]:
-        """Object detections in a reply go to `detections`, never on: the rest of the text, and
-        whether it still holds detection JSON that could not be read."""
-        found = extract(text)
-        if not found.found:
-            return text, False
-        self.counters.detections_refused += found.refused
-        if found.detections and self.config.detections and self.config.topics.detections:
-            report = DetectionReport(self.config.agent_id, found.detections, self._frames.shown())
-            self.counters.detections_published += 1
-            self._publish("detections", partial(self._port.publish_detections, report))
-        elif found.detections:
-            self.counters.detections_dropped += len(found.detections)
-            log.info(
-                "agent %s: %d detection(s) dropped (set detections: true to publish them)",
-                self.config.agent_id,
-                len(found.detections),
-            )
-        if found.refused:
-            log.warning("agent %s: %d detection(s) refused as unusable", self.config.agent_id, found.refused)
-        return found.text, found.unparsed
-
     async def _on_tool_call(self, session: Session, turn: Turn | None, call: ToolCall) -> None:
         self.counters.tool_calls += 1
         self._results.expect(session.serial, call.response_id, call.call_id, turn.number if turn else 0)
@@ -1170,20 +1131,21 @@ class AgentRuntime:
             turn.tool_responses.add(call.response_id)
         decision = decide(call, self.config.role is AgentRole.TOOLS, self._catalog)
         if isinstance(decision, RunRobotTool):
-            await self._start_robot_call(session, decision.tool, call)
+            self._start_robot_call(session, decision.tool, call)
             return
         if isinstance(decision, Refuse):
             self._deliver_tool_result(call.call_id, decision.output)
             return
         command = decision.command
         if is_stop_request(command):  # the model stops the robot: its actions too
-            await self._cancel_robot_calls(f"stopped ({command!r})")
+            self._robot.cancel_all(f"stopped ({command!r})")
         elif self._duplex and await self._delegate_to_robot_tool(session, call, command):
             return
-        self._requests += 1
-        request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
         self._tools.add(
-            call.call_id, request_id, command, self._clock.now() + self.config.tool_verdict_timeout_s
+            call.call_id,
+            self._new_request_id(),
+            command,
+            self._clock.now() + self.config.tool_verdict_timeout_s,
         )
         # routed by _route_commands, after the provider events already queued behind this call
 
@@ -1197,7 +1159,7 @@ class AgentRuntime:
             return False
         log.info("agent %s: delegation %r → %s", self.config.agent_id, said[:80], tool.name)
         named = ToolCall(call.response_id, call.call_id, tool.name, delegated.arguments)
-        await self._start_robot_call(session, tool, named)
+        self._start_robot_call(session, tool, named)
         return True
 
     async def _route_commands(self) -> None:
@@ -1297,19 +1259,11 @@ class AgentRuntime:
             return ()
         return (ROBOT_COMMAND_TOOL, *(robot_tool_spec(tool) for tool in self._catalog.tools))
 
-    async def _on_robot_tool_input(
-        self, item: CallReplied | CallFeedback | ToolCatalog | _SendFailed
-    ) -> None:
+    async def _on_robot_tool_input(self, item: CallReplied | CallFeedback | ToolCatalog | SendFailed) -> None:
         if isinstance(item, ToolCatalog):
             self._on_catalog(item)
-        elif isinstance(item, CallFeedback):
-            call = self.robot_calls.feedback(item.request_id, item.values, self._clock.now())
-            if call is not None:
-                self._tell_progress(call)
-        elif isinstance(item, CallReplied):
-            self._on_call_replied(item)
         else:
-            self._on_call_replied(CallReplied(item.request_id, False, None, item.error, "disconnected"))
+            self._robot.on_reply(item)
 
     def _on_catalog(self, item: ToolCatalog) -> None:
         try:
@@ -1326,144 +1280,16 @@ class AgentRuntime:
         if self._session is not None and self.config.role is AgentRole.TOOLS:
             self._end.recycle("the robot's tools changed", self._clock.now())  # told its tools when it opens
 
-    async def _start_robot_call(self, session: Session, tool: RobotTool, call: ToolCall) -> None:
-        now = self._clock.now()
-        try:
-            refused = refusal(
-                tool, call.arguments, self._attention, self.robot_calls, self.context.last_user_text(), now
-            )
-            if not refused and tool.kind == "command":
-                command = tool.command_text(call.arguments)
-            elif not refused:
-                message = tool.build(call.arguments)
-        except ToolArgumentError as error:
-            refused = f"bad arguments: {error}"
-        if refused:
-            self.robot_calls.counters.refused += 1
-            log.info("agent %s: %s refused: %s", self.config.agent_id, tool.name, refused)
-            self._publish_call(tool, "", call.arguments, "refused", error=refused)
-            self._deliver_tool_result(call.call_id, call_result(tool.name, False, "refused", error=refused))
-            return
-        self._requests += 1
-        request_id = f"{self.config.agent_id}-{self._run}-{self._requests}"
-        if tool.kind == "command":  # the command processor's verdict answers it, like robot_command
-            self._tools.add(call.call_id, request_id, command, now + self.config.tool_verdict_timeout_s)
-            return
-        if tool.kind == "topic":
-            send = partial(self._port.publish_tool_message, tool.ros_name, tool.type, message)
-            self._send_robot_request(request_id, send)
-            self._publish_call(tool, request_id, call.arguments, "published")
-            self._deliver_tool_result(call.call_id, call_result(tool.name, True, "published", {}))
-            return
-        action = tool.kind == "action"
-        limit = tool.rules.max_duration_s if action else tool.rules.timeout_s + REPLY_GRACE_S
-        self.robot_calls.start(
-            RobotCall(call.call_id, session.serial, tool, request_id, call.arguments, now, now + limit)
-        )
-        log.info(
-            "agent %s: %s(%s) sent as %s", self.config.agent_id, tool.name, call.arguments[:200], request_id
-        )
-        if action:
-            self._long_responses.append(call.response_id)
-            send = partial(self._port.send_action_goal, request_id, tool.ros_name, tool.type, message)
-        else:
-            send = partial(self._port.call_service, request_id, tool.ros_name, tool.type, message)
-        self._send_robot_request(request_id, send)
-        self._publish_call(tool, request_id, call.arguments, "running")
-
-    def _send_robot_request(self, request_id: str, send: Callable[[], Awaitable[None]]) -> None:
-        async def attempt() -> None:
-            try:
-                await send()
-            except ConnectionError as error:
-                self._queue.put_nowait(_SendFailed(request_id, str(error) or "the bridge is not connected"))
-
-        self._publish("robot tool", attempt)
-
-    def _tell_progress(self, call: RobotCall) -> None:
-        text = self.robot_calls.take_progress(call, self._clock.now())
-        session = self._session
-        if text and not call.orphaned and session is not None and session.serial == call.session:
-            session.send(SendToolProgress(call.call_id, f"{call.tool.name} in progress: {text}"))
-        self._publish_call(call.tool, call.request_id, call.arguments, "running", call, progress=text)
-
-    def _on_call_replied(self, reply: CallReplied) -> None:
-        call = self.robot_calls.finish(reply.request_id)
-        if call is None:
-            self.robot_calls.counters.stray_replies += 1
-            return
-        output = self.robot_calls.result_of(
-            call, reply.ok, reply.status, reply.values, reply.error, reply.code
-        )
-        self._answer_robot_call(call, output)
-
-    def _answer_robot_call(self, call: RobotCall, output: str) -> None:
-        result = json.loads(output)
-        self._publish_call(
-            call.tool, call.request_id, call.arguments, result["status"], call, error=result.get("error", "")
-        )
-        log.info(
-            "agent %s: %s (%s) ended: %s", self.config.agent_id, call.tool.name, call.request_id, output[:300]
-        )
-        session = self._session
-        if call.orphaned or session is None or session.serial != call.session:
-            # the call is gone with its session (or the provider withdrew it): a note instead
-            note = LATE_RESULT_NOTE.format(tool=call.tool.name, arguments=call.arguments[:200], result=output)
-            self._queue_result_turn(-1, (), note)
-            return
-        self._deliver_tool_result(call.call_id, output)
+    def _start_robot_call(self, session: Session, tool: RobotTool, call: ToolCall) -> None:
+        self._robot.start(session.serial, tool, call, self._attention, self.context.last_user_text())
 
     async def _robot_calls_due(self) -> None:
-        now = self._clock.now()
-        cancel, give_up = self.robot_calls.overdue(now)
-        for call in cancel:
-            self._cancel_robot_call(call, f"it took longer than {call.tool.rules.max_duration_s:g} s", now)
-        for call in give_up:
-            self.robot_calls.finish(call.request_id)
-            self._answer_robot_call(call, self.robot_calls.give_up(call))
-        for call in self.robot_calls.progress_due(now):
-            self._tell_progress(call)
+        self._robot.due()
 
-    async def _cancel_robot_calls(self, reason: str) -> None:
-        """A stop: every action the robot runs for us is cancelled (services end by themselves)."""
-        now = self._clock.now()
-        for call in self.robot_calls.active():
-            if call.long_running:
-                self._cancel_robot_call(call, reason, now)
-
-    def _cancel_robot_call(self, call: RobotCall, reason: str, now: float) -> None:
-        if not self.robot_calls.mark_cancelled(call, reason, now):
-            return
-        log.info(
-            "agent %s: cancelling %s (%s): %s", self.config.agent_id, call.tool.name, call.request_id, reason
-        )
-        self._send_robot_request(
-            call.request_id, partial(self._port.cancel_action_goal, call.request_id, call.tool.ros_name)
-        )
-
-    def _publish_call(
-        self,
-        tool: RobotTool,
-        request_id: str,
-        arguments: str,
-        state: str,
-        call: RobotCall | None = None,
-        progress: str = "",
-        error: str = "",
-    ) -> None:
-        elapsed = 0.0 if call is None else round(self._clock.now() - call.started_at, 3)
-        record = ToolCallMetrics(
-            self.config.agent_id,
-            request_id,
-            tool.name,
-            tool.kind,
-            arguments[:200],
-            state,
-            progress,
-            elapsed,
-            error,
-        )
-        self._publish("metrics", partial(self._port.publish_metrics, record))
+    def _new_request_id(self) -> str:
+        """A command or robot tool request: its id names this agent, this run and this count."""
+        self._requests += 1
+        return f"{self.config.agent_id}-{self._run}-{self._requests}"
 
     def _queue_result_turn(self, serial: int, results: tuple[ToolResult, ...], note: str = "") -> None:
         """A turn of its own for results whose turn is over: sent as they are to the session that
@@ -1491,7 +1317,7 @@ class AgentRuntime:
             return
         if done.status is ResponseStatus.FAILED:
             await self._fail_turn(turn, f"the provider failed the reply ({done.reason or 'no reason'})")
-        elif done.response_id in self._long_responses:
+        elif self._robot.started_action(done.response_id):
             # It started a robot action: its results (all of them, together) come when the action
             # ends, in a turn of their own; the conversation goes on meanwhile.
             turn.tool_calls_open.difference_update(self._results.calls_of(done.response_id))
