@@ -19,15 +19,13 @@ import asyncio
 import contextlib
 import json
 from dataclasses import dataclass, field
-from http import HTTPStatus
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from websockets.asyncio.server import Server, ServerConnection, serve
-from websockets.datastructures import Headers
+from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
-from websockets.http11 import Request, Response
 
+from by_your_command.emulators.openai_gateway import GatewayServer, safe_headers
 from by_your_command.emulators.openai_script import Script
 from by_your_command.emulators.openai_session import OpenAIRealtimeSession, ScriptCursor, SessionLimits
 from by_your_command.emulators.openai_wire import (
@@ -36,10 +34,7 @@ from by_your_command.emulators.openai_wire import (
     error_event,
     parse_client_frame,
 )
-from by_your_command.emulators.recorded import EventRecord, LoopbackUrls, ReceivedEvent
-from by_your_command.net.quiet_websockets import quiet_websocket_logger
-
-_QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
+from by_your_command.emulators.recorded import ReceivedEvent
 
 DEFAULT_MODEL = "gpt-realtime-2.1"
 BETA_CLOSE_CODE = 4000
@@ -61,81 +56,16 @@ class Handshake:
     headers: dict[str, str]  # lower-case names; Authorization is left out (a secret)
 
 
-class OpenAIRealtimeEmulator(LoopbackUrls):
+class OpenAIRealtimeEmulator(GatewayServer):
     """Handle of a running emulator (from `start`)."""
 
+    path_suffix = "/realtime"
+
     def __init__(self, script: Script, limits: ServerLimits) -> None:
+        super().__init__(limits, script.rejected_api_keys)
         self.script, self.limits = script, limits
         self.cursor = ScriptCursor(script)
         self.handshakes: list[Handshake] = []
-        self._record = EventRecord(limits.max_recorded_bytes)
-        self._server: Server | None = None
-        self._connections: set[ServerConnection] = set()
-        self._next_index = 0
-        self.host, self.port = "", 0
-
-    @property
-    def received(self) -> list[ReceivedEvent]:
-        return self._record.events()
-
-    def received_types(self, connection: int | None = None) -> list[str]:
-        return self._record.types(connection)
-
-    async def _start(self, host: str, port: int) -> None:
-        self._server = await serve(
-            self._serve_connection,
-            host,
-            port,
-            max_size=self.limits.max_frame_bytes,
-            compression=None,
-            process_request=self._check_handshake,
-            logger=_QUIET_WEBSOCKET_LOG,
-        )
-        self.host, self.port = host, int(self._server.sockets[0].getsockname()[1])
-
-    @property
-    def open_connections(self) -> int:
-        """Client connections open right now (a closed session is gone from here)."""
-        return len(self._connections)
-
-    async def stop(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
-
-    async def serve_forever(self) -> None:
-        assert self._server is not None
-        await self._server.serve_forever()
-
-    # ---- handshake ----------------------------------------------------------------------------
-    def _check_handshake(self, connection: ServerConnection, request: Request) -> Response | None:
-        path = urlsplit(request.path).path
-        if not path.rstrip("/").endswith("/realtime"):
-            return _http_error(connection, HTTPStatus.NOT_FOUND, "not_found", f"Invalid URL (GET {path})")
-        if len(self._connections) >= self.limits.max_connections:
-            return _http_error(
-                connection, HTTPStatus.TOO_MANY_REQUESTS, "rate_limit_exceeded", "Too many open sessions."
-            )
-        authorization = request.headers.get("Authorization", "")
-        key = authorization[len("Bearer ") :].strip() if authorization.startswith("Bearer ") else ""
-        if not key:
-            return _http_error(
-                connection,
-                HTTPStatus.UNAUTHORIZED,
-                None,
-                "You didn't provide an API key. You need to provide your API key in an Authorization header "
-                "using Bearer auth (i.e. Authorization: Bearer YOUR_KEY).",
-            )
-        if key in self.script.rejected_api_keys:
-            masked = f"{key[:3]}*****{key[-4:]}" if len(key) > 8 else "*****"
-            return _http_error(
-                connection,
-                HTTPStatus.UNAUTHORIZED,
-                "invalid_api_key",
-                f"Incorrect API key provided: {masked}. You can find your API key at "
-                "https://platform.openai.com/account/api-keys.",
-            )
-        return None
 
     # ---- one connection -----------------------------------------------------------------------
     async def _serve_connection(self, connection: ServerConnection) -> None:
@@ -143,7 +73,7 @@ class OpenAIRealtimeEmulator(LoopbackUrls):
         request = connection.request
         assert request is not None
         model = (parse_qs(urlsplit(request.path).query).get("model") or [DEFAULT_MODEL])[0]
-        self.handshakes.append(Handshake(index, request.path, model, _safe_headers(request.headers)))
+        self.handshakes.append(Handshake(index, request.path, model, safe_headers(request.headers)))
         self._connections.add(connection)
         try:
             if "realtime=v1" in request.headers.get("OpenAI-Beta", ""):
@@ -212,18 +142,6 @@ class OpenAIRealtimeEmulator(LoopbackUrls):
 
 async def _send(connection: ServerConnection, event: dict[str, Any]) -> None:
     await connection.send(json.dumps(event))
-
-
-def _http_error(connection: ServerConnection, status: HTTPStatus, code: str | None, message: str) -> Response:
-    body = {"error": {"message": message, "type": "invalid_request_error", "code": code, "param": None}}
-    response = connection.respond(status, json.dumps(body) + "\n")
-    del response.headers["Content-Type"]
-    response.headers["Content-Type"] = "application/json"
-    return response
-
-
-def _safe_headers(headers: Headers) -> dict[str, str]:
-    return {name.lower(): value for name, value in headers.raw_items() if name.lower() != "authorization"}
 
 
 async def start(

@@ -233,8 +233,9 @@ def bridge_process(namespace: str, port: int = 0, *params: str) -> Iterator[tupl
 
 
 @contextmanager
-def demo_robot_process(namespace: str, *params: str) -> Iterator[subprocess.Popen[str]]:
-    """demo_robot (a pretend robot: navigate_to_pose, dock, battery_status); `params` name:=value."""
+def demo_robot(namespace: str, *params: str) -> Iterator[tuple[subprocess.Popen[str], Output]]:
+    """demo_robot (a pretend robot: navigate_to_pose, dock, battery_status) with its log kept: it
+    says which pose each goal asked for. `params` name:=value."""
     args = [arg for param in params for arg in ("-p", param)]
     command = python_module(
         "by_your_command.nodes.demo_robot", "--ros-args", "-r", f"__ns:={namespace}", *args
@@ -247,6 +248,16 @@ def demo_robot_process(namespace: str, *params: str) -> Iterator[subprocess.Pope
             what="demo_robot startup",
         )
         assert output.find("demo_robot ready"), str(output)
+        try:
+            yield process, output
+        finally:  # pytest shows captured stdout only when the test failed
+            print("--- demo_robot:", *list(output.lines), sep="\n")
+
+
+@contextmanager
+def demo_robot_process(namespace: str, *params: str) -> Iterator[subprocess.Popen[str]]:
+    """demo_robot, when its log is not needed."""
+    with demo_robot(namespace, *params) as (process, _):
         yield process
 
 
@@ -298,19 +309,27 @@ def agent_config(
     return path, data
 
 
-def gemini_agent_config(
-    tmp_path: Path, api: GeminiEmulatorThread, shipped: str = "agent_gemini.yaml", **settings: Any
+def shipped_agent_config(
+    tmp_path: Path, shipped: str, endpoint: dict[str, Any], **settings: Any
 ) -> tuple[Path, dict[str, Any]]:
-    """A shipped Gemini agent config (config/`shipped`) pointed at the emulator (its base URL and
-    certificate); `settings` override AgentConfig keys, `provider` is merged into the provider's."""
+    """A shipped agent config (config/`shipped`) pointed at an emulator (`endpoint`: the provider
+    keys that reach it); `settings` override AgentConfig keys, `provider` is merged into the provider's."""
     data: dict[str, Any] = yaml.safe_load((CONFIG_DIR / shipped).read_text())
-    provider = {**data["provider"], "base_url": api.base_url, "ca_file": api.ca_file}
+    provider = {**data["provider"], **endpoint}
     data.update(pause_timeout_s=60.0)  # no session cycling in the middle of a test unless it asks
     data.update(settings)
     data["provider"] = {**provider, **settings.get("provider", {})}
     path = tmp_path / f"{data['agent_id']}.yaml"
     path.write_text(yaml.safe_dump(data))
     return path, data
+
+
+def gemini_agent_config(
+    tmp_path: Path, api: GeminiEmulatorThread, shipped: str = "agent_gemini.yaml", **settings: Any
+) -> tuple[Path, dict[str, Any]]:
+    """A shipped Gemini agent config pointed at the emulator (its base URL and certificate)."""
+    endpoint = {"base_url": api.base_url, "ca_file": api.ca_file}
+    return shipped_agent_config(tmp_path, shipped, endpoint, **settings)
 
 
 @contextmanager
@@ -586,12 +605,23 @@ class RunningAgent:
     settings: dict[str, Any]
 
     def stop(self) -> list[str]:
-        """SIGTERM, as Ctrl-C or `ros2 launch` would: the agent closes its session and exits 0."""
-        self.process.send_signal(signal.SIGTERM)
-        assert self.process.wait(timeout=30) == 0, str(self.output)
-        lines = self.output.finish()
-        assert FAKE_KEY not in "\n".join(lines), "the API key reached a log line"
-        return lines
+        return stop_agent(self.process, self.output)
+
+
+def stop_agent(process: subprocess.Popen[str], output: Output) -> list[str]:
+    """SIGTERM, as Ctrl-C or `ros2 launch` would: the agent closes its session and exits 0. Its log
+    lines, none of which holds the API key."""
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(timeout=30) == 0, str(output)
+    lines = output.finish()
+    assert FAKE_KEY not in "\n".join(lines), "the API key reached a log line"
+    return lines
+
+
+def stop_player(player: subprocess.Popen[str]) -> None:
+    """SIGTERM: the WAV sink writes what had sounded and closes the file."""
+    player.send_signal(signal.SIGTERM)
+    player.wait(timeout=30)
 
 
 @dataclass

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import base64
 import re
-import signal
 import subprocess
 import time
 from collections.abc import Iterator
@@ -17,22 +16,23 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from agent_graph import (
-    CONFIG_DIR,
     FAKE_KEY,
     GraphProbe,
     Output,
     agent_process,
     alive,
     bridge_process,
+    demo_robot,
     graph_probe,
     player_process,
     processor_process,
     setup_requests,
+    shipped_agent_config,
+    stop_agent,
+    stop_player,
     until,
 )
-from byc_testing import python_module, running_process, wait_for
 from std_msgs.msg import Bool
 
 from by_your_command.audio.pcm import StreamResampler
@@ -100,14 +100,8 @@ def gpt_live_agent_config(
     """The shipped agent_gpt_live.yaml pointed at the emulator, with the echo-cancelled microphone
     (echo_mode aec, as the gpt_live profile runs it); `settings` override AgentConfig keys,
     `provider` is merged into the provider's."""
-    data: dict[str, Any] = yaml.safe_load((CONFIG_DIR / "agent_gpt_live.yaml").read_text())
-    provider = {**data["provider"], "websocket_base_url": api.url}
-    data.update(echo_mode="aec", pause_timeout_s=60.0)  # no pause cycling unless a test asks
-    data.update(settings)
-    data["provider"] = {**provider, **settings.get("provider", {})}
-    path = tmp_path / f"{data['agent_id']}.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path, data
+    endpoint = {"websocket_base_url": api.url}
+    return shipped_agent_config(tmp_path, "agent_gpt_live.yaml", endpoint, **{"echo_mode": "aec", **settings})
 
 
 def say_live(probe: GraphProbe, pcm: np.ndarray, chunk_ms: int = 100) -> None:
@@ -123,28 +117,6 @@ def say_live(probe: GraphProbe, pcm: np.ndarray, chunk_ms: int = 100) -> None:
     probe.activity.publish(Bool(data=False))
 
 
-@contextmanager
-def demo_robot(namespace: str, *params: str) -> Iterator[tuple[subprocess.Popen[str], Output]]:
-    """demo_robot (navigate_to_pose, dock, battery_status) with its log kept: it says which pose
-    each goal asked for. `params` name:=value."""
-    args = [arg for param in params for arg in ("-p", param)]
-    command = python_module(
-        "by_your_command.nodes.demo_robot", "--ros-args", "-r", f"__ns:={namespace}", *args
-    )
-    with running_process(command) as process:
-        output = Output(process)
-        wait_for(
-            lambda: output.find("demo_robot ready") or process.poll() is not None,
-            timeout=60,
-            what="demo_robot startup",
-        )
-        assert output.find("demo_robot ready"), str(output)
-        try:
-            yield process, output
-        finally:
-            print("--- demo_robot:", *list(output.lines), sep="\n")
-
-
 @dataclass
 class LiveGraph:
     api: GptLiveEmulatorThread
@@ -156,18 +128,11 @@ class LiveGraph:
     robot_out: Output | None = None  # demo_robot's log, when it runs
 
     def stop_agent(self) -> list[str]:
-        """SIGTERM, as Ctrl-C or `ros2 launch` would: the agent closes its session and exits 0."""
-        self.agent.send_signal(signal.SIGTERM)
-        assert self.agent.wait(timeout=30) == 0, str(self.agent_out)
-        lines = self.agent_out.finish()
-        assert FAKE_KEY not in "\n".join(lines), "the API key reached a log line"
-        return lines
+        return stop_agent(self.agent, self.agent_out)
 
     def stop_player(self) -> None:
-        """SIGTERM: the WAV sink writes what had sounded and closes the file."""
         assert self.player is not None
-        self.player.send_signal(signal.SIGTERM)
-        self.player.wait(timeout=30)
+        stop_player(self.player)
 
     def records(self, kind: str) -> list[dict[str, Any]]:
         return [r for r in self.probe.metric_records() if r["record"] == kind]

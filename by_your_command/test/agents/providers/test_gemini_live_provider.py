@@ -14,10 +14,11 @@ import json
 import logging
 import re
 import time
-from collections.abc import AsyncIterator, Callable, Coroutine
+from collections.abc import Callable, Coroutine
 from typing import Any
 
 import pytest
+from emulated_session import is_done, run_session, take_until
 
 from by_your_command.agents.events import (
     AssistantAudio,
@@ -67,32 +68,10 @@ def run(
     handles: ResumptionHandles | None = None,
     **config: Any,
 ) -> None:
-    async def main() -> None:
-        emulator = await start(script=script)
-        provider = GeminiLiveProvider(settings(emulator, **config), api_key=KEY, resumption=handles)
-        try:
-            await provider.connect(setup)
-            await body(emulator, provider)
-        finally:
-            await provider.close()
-            await emulator.stop()
+    def provider(emulator: GeminiLiveEmulator) -> GeminiLiveProvider:
+        return GeminiLiveProvider(settings(emulator, **config), api_key=KEY, resumption=handles)
 
-    asyncio.run(asyncio.wait_for(main(), 30))
-
-
-async def take_until(
-    events: AsyncIterator[ProviderEvent], done: Callable[[ProviderEvent], bool]
-) -> list[ProviderEvent]:
-    taken: list[ProviderEvent] = []
-    async for event in events:
-        taken.append(event)
-        if done(event):
-            return taken
-    raise AssertionError(f"events ended before the expected one; got {taken}")
-
-
-def is_done(event: ProviderEvent) -> bool:
-    return isinstance(event, ResponseDone)
+    run_session(lambda: start(script=script), provider, body, setup)
 
 
 def camel(value: Any) -> Any:

@@ -10,11 +10,12 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
-from collections.abc import AsyncIterator, Callable, Coroutine
+from collections.abc import Callable, Coroutine
 from typing import Any
 
 import numpy as np
 import pytest
+from emulated_session import is_done, run_session, sent, take_until
 from openai.types.live import (
     DelegationCreatedEvent,
     ErrorEvent,
@@ -373,44 +374,18 @@ Body = Callable[[GptLiveEmulator, GptLiveProvider], Coroutine[Any, Any, None]]
 
 
 def run(body: Body, script: Script, setup: SessionSetup = SETUP, **config: Any) -> None:
-    async def main() -> None:
-        emulator = await start(script=script)
+    def provider(emulator: GptLiveEmulator) -> GptLiveProvider:
         settings = GptLiveConfig(
             websocket_base_url=emulator.websocket_base_url, reply_end_gap_ms=150, **config
         )
-        provider = GptLiveProvider(settings, api_key="sk-test")
-        try:
-            await provider.connect(setup)
-            await body(emulator, provider)
-        finally:
-            await provider.close()
-            await emulator.stop()
+        return GptLiveProvider(settings, api_key="sk-test")
 
-    asyncio.run(asyncio.wait_for(main(), 30))
+    run_session(lambda: start(script=script), provider, body, setup)
 
 
 def speech(ms: int = 400, rate: int = 24_000) -> bytes:
     t = np.arange(rate * ms // 1000) / rate
     return (8000 * np.sin(2 * np.pi * 220 * t)).astype("<i2").tobytes()
-
-
-async def take_until(
-    events: AsyncIterator[ProviderEvent], done: Callable[[ProviderEvent], bool]
-) -> list[ProviderEvent]:
-    taken: list[ProviderEvent] = []
-    async for event in events:
-        taken.append(event)
-        if done(event):
-            return taken
-    raise AssertionError(f"events ended before the expected one; got {taken}")
-
-
-def is_done(event: ProviderEvent) -> bool:
-    return isinstance(event, ResponseDone)
-
-
-def sent(emulator: GptLiveEmulator, kind: str) -> list[dict[str, Any]]:
-    return [record.event for record in emulator.received if record.event["type"] == kind]
 
 
 def final_words(events: list[ProviderEvent]) -> list[str]:

@@ -88,3 +88,9 @@ def test_handshake_statuses(status: int, fatal: bool) -> None:
     assert error.fatal is fatal
     if status == 429:
         assert error.retry_after_s == 2.0
+
+
+@pytest.mark.parametrize(("header", "wait"), [("inf", 600.0), ("1e9", 600.0), ("nan", 0.0), ("-3", 0.0)])
+def test_an_untrusted_retry_after_header_is_bounded(header: str, wait: float) -> None:
+    """A 429's Retry-After is the server's word: "inf" must not stop the agent for good."""
+    assert handshake_error(429, header).retry_after_s == wait

@@ -9,18 +9,18 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-from collections.abc import AsyncIterator, Callable, Coroutine
+from collections.abc import Callable, Coroutine
 from dataclasses import replace
 from typing import Any
 
 import pytest
+from emulated_session import is_done, run_session, sent, take_until
 
 from by_your_command.agents.events import (
     AssistantAudio,
     AssistantText,
     AssistantTranscript,
     ProviderError,
-    ProviderEvent,
     ResponseDone,
     ResponseStatus,
     SessionEnding,
@@ -51,37 +51,11 @@ Body = Callable[[OpenAIRealtimeEmulator, OpenAIRealtimeProvider], Coroutine[Any,
 
 
 def run(body: Body, script: Script | None = None, setup: SessionSetup = SETUP, **config: Any) -> None:
-    async def main() -> None:
-        emulator = await start(script=script)
+    def provider(emulator: OpenAIRealtimeEmulator) -> OpenAIRealtimeProvider:
         settings = OpenAIRealtimeConfig(websocket_base_url=emulator.websocket_base_url, **config)
-        provider = OpenAIRealtimeProvider(settings, api_key="sk-test")
-        try:
-            await provider.connect(setup)
-            await body(emulator, provider)
-        finally:
-            await provider.close()
-            await emulator.stop()
+        return OpenAIRealtimeProvider(settings, api_key="sk-test")
 
-    asyncio.run(asyncio.wait_for(main(), 30))
-
-
-async def take_until(
-    events: AsyncIterator[ProviderEvent], done: Callable[[ProviderEvent], bool]
-) -> list[ProviderEvent]:
-    taken: list[ProviderEvent] = []
-    async for event in events:
-        taken.append(event)
-        if done(event):
-            return taken
-    raise AssertionError(f"events ended before the expected one; got {taken}")
-
-
-def is_done(event: ProviderEvent) -> bool:
-    return isinstance(event, ResponseDone)
-
-
-def sent(emulator: OpenAIRealtimeEmulator, kind: str) -> list[dict[str, Any]]:
-    return [record.event for record in emulator.received if record.event["type"] == kind]
+    run_session(lambda: start(script=script), provider, body, setup)
 
 
 def speech(ms: int) -> bytes:

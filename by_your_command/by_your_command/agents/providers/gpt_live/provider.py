@@ -36,16 +36,14 @@ import logging
 import uuid
 from collections import Counter
 from collections.abc import AsyncIterator, Sequence
-from typing import cast
 
-from openai import AsyncOpenAI, OpenAIError
+from openai import AsyncOpenAI
 from openai.resources.live.live import AsyncLiveConnection
 from openai.types.live import ErrorEvent, SessionClosedEvent, SessionStartedEvent
 from openai.types.live.client_delegation_param import ClientDelegationParam
 from openai.types.live.initial_item_param import InitialItemParam
 from openai.types.live.session_config_param import SessionConfigParam
-from openai.types.websocket_connection_options import WebSocketConnectionOptions
-from websockets.exceptions import ConnectionClosed, InvalidStatus
+from websockets.exceptions import ConnectionClosed
 
 from by_your_command.agents.events import ProviderError, ProviderEvent
 from by_your_command.agents.provider import (
@@ -57,7 +55,7 @@ from by_your_command.agents.provider import (
     ToolResult,
 )
 from by_your_command.agents.providers.event_stream import EventStream
-from by_your_command.agents.providers.failures import closing_on_failure, handshake_refusal
+from by_your_command.agents.providers.failures import closing_on_failure
 from by_your_command.agents.providers.gpt_live.config import GptLiveConfig
 from by_your_command.agents.providers.gpt_live.errors import handshake_error, start_refusal
 from by_your_command.agents.providers.gpt_live.events import (
@@ -66,13 +64,18 @@ from by_your_command.agents.providers.gpt_live.events import (
     parse_server_event,
 )
 from by_your_command.agents.providers.gpt_live.input import InputClock
+from by_your_command.agents.providers.openai_common.connection import (
+    open_connection,
+    release,
+    sdk_client,
+    websocket_options,
+)
 from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 log = logging.getLogger(__name__)
 
 _SESSION = "the GPT-Live session"  # as errors name it
 MAX_APPEND_BYTES = 1024 * 1024  # one input_audio.append: longer audio goes in several
-MAX_SERVER_EVENT_BYTES = 16 * 1024 * 1024  # bounded memory: server events are small deltas
 _QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 
@@ -128,32 +131,13 @@ class GptLiveProvider:
             raise ProviderClosed("a provider is one session: build a new one to reconnect")
         config = self.config
         self._translator.text_replies = not setup.audio_out
-        try:
-            client = AsyncOpenAI(
-                api_key=self._api_key,
-                base_url=config.base_url or None,
-                websocket_base_url=config.websocket_base_url or None,
-            )
-        except OpenAIError:
-            raise ProviderFailure(
-                ProviderError("missing_api_key", "no OpenAI API key: set OPENAI_API_KEY", fatal=True)
-            ) from None
-        self._client = client
-        options = cast(
-            WebSocketConnectionOptions,
-            {"logger": _QUIET_WEBSOCKET_LOG, "max_size": MAX_SERVER_EVENT_BYTES, "compression": None},
-        )
+        self._client = client = sdk_client(self._api_key, config.base_url, config.websocket_base_url)
         # No on_reconnecting: the SDK does not reconnect by itself; the runtime opens a new session.
         manager = client.live.connect(
-            extra_headers=dict(config.extra_headers), websocket_connection_options=options
+            extra_headers=dict(config.extra_headers),
+            websocket_connection_options=websocket_options(_QUIET_WEBSOCKET_LOG),
         )
-        try:
-            connection = await manager.enter()
-        except InvalidStatus as refused:
-            response = refused.response
-            raise handshake_refusal(
-                handshake_error(response.status_code, response.headers.get("Retry-After"))
-            ) from None
+        connection = await open_connection(manager, handshake_error)
         self._connection = connection
         try:
             await self._start(connection, setup)
@@ -225,17 +209,7 @@ class GptLiveProvider:
                     await connection.session.close()
                     await asyncio.wait_for(self._session_closed.wait(), self.config.closed_wait_s)
         finally:
-            if connection is not None:
-                with contextlib.suppress(Exception):
-                    await connection.close()
-            if self._reader is not None:
-                self._reader.cancel()  # it may wait for room in a full queue nobody reads any more
-                await asyncio.gather(self._reader, return_exceptions=True)
-            else:
-                self._events.end()
-            if self._client is not None:
-                with contextlib.suppress(Exception):
-                    await self._client.close()  # its HTTP pool, unused by the WebSocket but opened
+            await release(connection, self._reader, self._events, self._client)
 
     # ---- input ------------------------------------------------------------------------------
     def _live(self) -> AsyncLiveConnection:

@@ -18,9 +18,9 @@ import uuid
 from collections import deque
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass
-from typing import Literal, cast
+from typing import Literal
 
-from openai import AsyncOpenAI, OpenAIError
+from openai import AsyncOpenAI
 from openai.resources.realtime.realtime import AsyncRealtimeConnection
 from openai.types.realtime import (
     RealtimeAudioConfigParam,
@@ -30,8 +30,7 @@ from openai.types.realtime import (
     ResponseDoneEvent,
     SessionUpdatedEvent,
 )
-from openai.types.websocket_connection_options import WebSocketConnectionOptions
-from websockets.exceptions import ConnectionClosed, InvalidStatus
+from websockets.exceptions import ConnectionClosed
 
 from by_your_command.agents.events import ProviderError, ProviderEvent
 from by_your_command.agents.provider import (
@@ -44,7 +43,13 @@ from by_your_command.agents.provider import (
     ToolSpec,
 )
 from by_your_command.agents.providers.event_stream import EventStream
-from by_your_command.agents.providers.failures import closing_on_failure, handshake_refusal
+from by_your_command.agents.providers.failures import closing_on_failure
+from by_your_command.agents.providers.openai_common.connection import (
+    open_connection,
+    release,
+    sdk_client,
+    websocket_options,
+)
 from by_your_command.agents.providers.openai_realtime.errors import handshake_error, provider_error
 from by_your_command.agents.providers.openai_realtime.events import BYTES_PER_MS, SAMPLE_RATE, EventTranslator
 from by_your_command.net.quiet_websockets import quiet_websocket_logger
@@ -55,7 +60,6 @@ _SESSION = "the OpenAI Realtime session"  # as errors name it
 MIN_COMMIT_MS = 100  # the server refuses shorter commits (input_audio_buffer_commit_empty)
 MAX_SESSION_S = 3600.0  # GA sessions end after 60 minutes (session_expired)
 MAX_IMAGE_BYTES = 10 * 1024 * 1024  # an event carries at most 15 MiB, base64 inflates by 4/3
-MAX_SERVER_EVENT_BYTES = 16 * 1024 * 1024  # bounded memory: server events are small deltas
 _QUIET_WEBSOCKET_LOG = quiet_websocket_logger(__name__)
 
 
@@ -108,31 +112,13 @@ class OpenAIRealtimeProvider:
         if self._connection is not None or self._closed:
             raise ProviderClosed("a provider is one session: build a new one to reconnect")
         config = self.config
-        try:
-            client = AsyncOpenAI(
-                api_key=self._api_key,
-                base_url=config.base_url or None,
-                websocket_base_url=config.websocket_base_url or None,
-            )
-        except OpenAIError:
-            raise ProviderFailure(
-                ProviderError("missing_api_key", "no OpenAI API key: set OPENAI_API_KEY", fatal=True)
-            ) from None
-        self._client = client
-        options = cast(
-            WebSocketConnectionOptions,
-            # `logger` is a websockets.connect option the SDK passes through but does not declare.
-            {"logger": _QUIET_WEBSOCKET_LOG, "max_size": MAX_SERVER_EVENT_BYTES, "compression": None},
-        )
+        self._client = client = sdk_client(self._api_key, config.base_url, config.websocket_base_url)
         manager = client.realtime.connect(
-            model=config.model, extra_headers=dict(config.extra_headers), websocket_connection_options=options
+            model=config.model,
+            extra_headers=dict(config.extra_headers),
+            websocket_connection_options=websocket_options(_QUIET_WEBSOCKET_LOG),
         )
-        try:
-            connection = await manager.enter()
-        except InvalidStatus as refused:
-            response = refused.response
-            error = handshake_error(response.status_code, response.headers.get("Retry-After"))
-            raise handshake_refusal(error) from None
+        connection = await open_connection(manager, handshake_error)
         self._connection = connection
         try:
             await self._configure(connection, setup)
@@ -218,17 +204,7 @@ class OpenAIRealtimeProvider:
     async def close(self) -> None:
         self._closed = True
         connection, self._connection = self._connection, None
-        if connection is not None:
-            with contextlib.suppress(Exception):
-                await connection.close()
-        if self._reader is not None:
-            self._reader.cancel()  # it may wait for room in a full queue nobody reads any more
-            await asyncio.gather(self._reader, return_exceptions=True)
-        else:
-            self._events.end()
-        if self._client is not None:
-            with contextlib.suppress(Exception):
-                await self._client.close()  # its HTTP pool, unused by the WebSocket but opened
+        await release(connection, self._reader, self._events, self._client)
 
     # ---- input ------------------------------------------------------------------------------
     def _live(self) -> AsyncRealtimeConnection:
