@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import base64
 import io
-import signal
 import subprocess
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
@@ -31,6 +30,8 @@ from agent_graph import (
     graph_probe,
     player_process,
     setup_requests,
+    stop_agent,
+    stop_player,
     until,
 )
 from by_your_command_msgs.msg import Interruption
@@ -59,17 +60,11 @@ class Graph:
     player: subprocess.Popen[str] | None
 
     def stop_agent(self) -> list[str]:
-        self.agent.send_signal(signal.SIGTERM)
-        assert self.agent.wait(timeout=30) == 0, str(self.agent_out)
-        lines = self.agent_out.finish()
-        assert FAKE_KEY not in "\n".join(lines), "the API key reached a log line"
-        return lines
+        return stop_agent(self.agent, self.agent_out)
 
     def stop_player(self) -> None:
-        """SIGTERM: the WAV sink writes what had sounded and closes the file."""
         assert self.player is not None
-        self.player.send_signal(signal.SIGTERM)
-        self.player.wait(timeout=30)
+        stop_player(self.player)
 
     def received(self, connection: int) -> list[dict[str, Any]]:
         return [r.event for r in self.openai.received() if r.connection == connection]

@@ -54,6 +54,7 @@ from by_your_command.agents.providers.gemini_live.errors import (
 )
 from by_your_command.agents.providers.gemini_live.events import EventTranslator
 from by_your_command.agents.providers.gemini_live.resumption import ResumptionHandles
+from by_your_command.agents.providers.session_guards import check_whole_samples, open_session
 from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 log = logging.getLogger(__name__)
@@ -266,9 +267,7 @@ class GeminiLiveProvider:
 
     # ---- input ------------------------------------------------------------------------------
     def _live(self) -> Any:
-        if self._closed or self._session is None:
-            raise ProviderClosed(f"{_SESSION} is closed")
-        return self._session
+        return open_session(self._closed, self._session, _SESSION)
 
     async def _start_activity(self) -> None:
         if not self._in_activity:
@@ -278,8 +277,7 @@ class GeminiLiveProvider:
             self._turn_audio_bytes = 0
 
     async def send_audio(self, pcm: bytes) -> None:
-        if len(pcm) % 2:
-            raise ValueError(f"PCM16 needs whole samples: {len(pcm)} bytes is odd")
+        check_whole_samples(pcm)
         if not pcm:
             return
         session = self._live()

@@ -60,6 +60,7 @@ from by_your_command.agents.providers.local.replies import (
     success,
 )
 from by_your_command.agents.providers.local.text import rejected
+from by_your_command.agents.providers.session_guards import check_whole_samples, open_session
 from by_your_command.agents.robot_tool import TOOL_NAME
 from by_your_command.local_speech.recognizer import Recognition
 from by_your_command.local_speech.replies import acknowledgement, answer
@@ -205,14 +206,11 @@ class OfflineProvider:
         log.info("offline session closed: %s", self.stats)
 
     def _live(self) -> SessionSetup:
-        if self._closed or self._setup is None:
-            raise ProviderClosed("the offline session is closed")
-        return self._setup
+        return open_session(self._closed, self._setup, "the offline session")
 
     # ---- input ------------------------------------------------------------------------------
     async def send_audio(self, pcm: bytes) -> None:
-        if len(pcm) % 2:
-            raise ValueError(f"PCM16 needs whole samples: {len(pcm)} bytes is odd")
+        check_whole_samples(pcm)
         self._live()
         room = self._max_audio_bytes - len(self._audio)
         self._audio += pcm[: max(room, 0)]

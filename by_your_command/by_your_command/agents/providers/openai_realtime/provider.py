@@ -52,6 +52,7 @@ from by_your_command.agents.providers.openai_common.connection import (
 )
 from by_your_command.agents.providers.openai_realtime.errors import handshake_error, provider_error
 from by_your_command.agents.providers.openai_realtime.events import BYTES_PER_MS, SAMPLE_RATE, EventTranslator
+from by_your_command.agents.providers.session_guards import check_whole_samples, open_session
 from by_your_command.net.quiet_websockets import quiet_websocket_logger
 
 log = logging.getLogger(__name__)
@@ -208,13 +209,10 @@ class OpenAIRealtimeProvider:
 
     # ---- input ------------------------------------------------------------------------------
     def _live(self) -> AsyncRealtimeConnection:
-        if self._closed or self._connection is None:
-            raise ProviderClosed(f"{_SESSION} is closed")
-        return self._connection
+        return open_session(self._closed, self._connection, _SESSION)
 
     async def send_audio(self, pcm: bytes) -> None:
-        if len(pcm) % 2:
-            raise ValueError(f"PCM16 needs whole samples: {len(pcm)} bytes is odd")
+        check_whole_samples(pcm)
         if not pcm:
             return
         connection = self._live()
