@@ -13,8 +13,10 @@ as loud as the user at the mic, the user came out of AEC3 correlating ~0.6 with 
   along than the NLMS it replaced after 3-8 s). Two copies: a background filter adapts on every
   block; the foreground filter, whose output is used, takes the background's coefficients when
   they cancel better and no double talk is detected (the output jumps against the mic above
-  what echo alone leaves). An output louder than the mic is no voice but a changed echo path:
-  learning restarts as at the start (from the current coefficients) instead of freezing.
+  what echo alone leaves, and above the echo its own variances say it may still miss: a new
+  filter's error jumps with every syllable it has not heard yet). An output louder than the mic
+  is no voice but a changed echo path: learning restarts as at the start (from the current
+  coefficients) instead of freezing.
   Its output is mic minus the echo estimate: the user's voice is not touched.
 - ResidualEchoSuppressor: per frequency bin, the echo the filter leaves is estimated from the
   filter's echo estimate, from the reference's envelope (for what the filter has not learned
@@ -22,7 +24,10 @@ as loud as the user at the mic, the user came out of AEC3 correlating ~0.6 with 
   over bands the user is not clearly above, held with a reverberant decay; bins where it
   dominates are turned down softly, bins where the user dominates pass almost whole, and frames
   with nothing clearly above it (for two blocks running) are taken down whole (residual speech
-  must not start utterances in the VAD).
+  must not start utterances in the VAD). Only that whole-frame decision uses the estimate held
+  with the room's decay; the per-bin gain uses the current one, which already holds the tail the
+  filter spans (its echo estimate, the held reference envelope, its variances over all
+  partitions); held twice, it went on taking the user down after each loud syllable.
 """
 
 from __future__ import annotations
@@ -66,7 +71,7 @@ RESIDUAL_MUTE_DB = -60.0  # frames with echo alone (nothing clearly above the re
 USER_ONSET_BLOCKS = 2  # the user is evident in this many blocks running before a frame opens
 USER_HANGOVER_BLOCKS = 10  # after the user was evident, blocks not muted whole (100 ms)
 ECHO_FLOOR = 1e-8  # echo estimate power per sample (-80 dBFS) below which a band is not learned
-INITIAL_UNCERTAINTY = 0.003  # Kalman: coefficient variance per partition and bin before learning
+INITIAL_UNCERTAINTY = 0.006  # Kalman: coefficient variance per partition and bin before learning
 FORGET = 0.999  # Kalman: coefficients decay this much per block, their variance grows back (tracking)
 ERROR_SMOOTHING = 0.8  # Kalman: error power per bin (what the echo model does not explain): old weight
 
@@ -113,6 +118,8 @@ class LinearEchoCanceller:
         self._error_power = np.zeros(bins)
         # Echo the foreground may still miss per bin (its coefficients' variance x the reference).
         self.uncertain_echo: FloatArray = np.zeros(bins)
+        self._uncertain_for = (-1, -1)  # (block, foreground_updates) uncertain_echo is for
+        self._uncertain_smoothed = 0.0  # its energy per block, smoothed as the detector's energies
         self._background_error = 0.0
         self._foreground_error = 0.0
         self._constrain_next = 0  # one partition per block is made causal again (round robin)
@@ -141,13 +148,22 @@ class LinearEchoCanceller:
         if float(np.dot(reference, reference)) > REFERENCE_FLOOR * n:
             # In double talk the background keeps learning, slower, and the output filter takes
             # nothing from it: what it learns there may be the user's voice.
-            double_talk = self._double_talk(foreground_error, mic)
+            double_talk = self._double_talk(foreground_error, mic, self._uncertain_energy())
             self._adapt(background_error, DOUBLE_TALK_STEP if double_talk else 1.0)
             self._compare(foreground_error, background_error, copy=not double_talk)
         self.echo_spectrum = foreground_echo
-        self.uncertain_echo = 0.5 * np.einsum("pk,pk->k", self._history_power, self._foreground_uncertainty)
+        if self._uncertain_for != (self.stats.blocks, self.stats.foreground_updates):  # stale
+            self._uncertain_energy()
         self.stats.blocks += 1
         return foreground_error
+
+    def _uncertain_energy(self) -> float:
+        """Updates `uncertain_echo` for the latest reference and the foreground's variances;
+        returns it as the error energy per block (sample domain) it stands for."""
+        self.uncertain_echo = 0.5 * np.einsum("pk,pk->k", self._history_power, self._foreground_uncertainty)
+        self._uncertain_for = (self.stats.blocks, self.stats.foreground_updates)
+        # Parseval on the zero-padded frame: the block's energy is the half spectrum's over n.
+        return float(np.sum(self.uncertain_echo)) / self.block
 
     def _adapt(self, error: FloatArray, scale: float) -> None:
         """One Kalman step of the background filter (diagonal, per partition and bin): gain =
@@ -180,14 +196,16 @@ class LinearEchoCanceller:
         self._uncertainty += (1 - kept) * coefficient_power
         self._background *= FORGET
 
-    def _double_talk(self, error: FloatArray, mic: FloatArray) -> bool:
+    def _double_talk(self, error: FloatArray, mic: FloatArray, uncertain: float) -> bool:
         """True when the output is `margin_db` louder against the mic than echo alone leaves it
-        (a running quantile, learned from the other blocks): someone is talking, freeze."""
+        (a running quantile, learned from the other blocks) and louder than the echo the filter
+        may still miss (`uncertain`, energy per block): someone is talking, freeze."""
         # Energies smoothed over a few blocks: the robot's pauses (error ~ mic, both quiet) weigh
         # little against its syllables, so the ratio stays near -ERLE until someone talks.
         a = DOUBLE_TALK_SMOOTHING
         self._error_energy = (1 - a) * self._error_energy + a * float(np.dot(error, error))
         self._mic_energy = (1 - a) * self._mic_energy + a * float(np.dot(mic, mic))
+        self._uncertain_smoothed = (1 - a) * self._uncertain_smoothed + a * uncertain
         ratio = 10 * math.log10((self._error_energy + 1e-12) / (self._mic_energy + 1e-12))
         self._louder_run = self._louder_run + 1 if ratio > PATH_CHANGE_DB else max(0, self._louder_run - 1)
         if self._louder_run >= PATH_CHANGE_BLOCKS:
@@ -199,7 +217,10 @@ class LinearEchoCanceller:
             self.echo_left_db = 0.0
             np.maximum(self._uncertainty, INITIAL_UNCERTAINTY, out=self._uncertainty)
             self._hold = 0
-        if ratio > self.echo_left_db + self._margin_db:
+        # A new filter's output jumps with each syllable it has not learned; its variances say
+        # so. Taken for double talk, that froze it at a few dB of ERLE for seconds.
+        unexplained = self._error_energy > self._uncertain_smoothed
+        if ratio > self.echo_left_db + self._margin_db and unexplained:
             self._hold = DOUBLE_TALK_HOLD_BLOCKS  # the user's quieter syllables come next
         if self._hold > 0:
             self._hold -= 1
@@ -311,8 +332,10 @@ class ResidualEchoSuppressor:
             estimate = np.maximum(share * echo_power, coupling * self._envelope)
             if uncertain_echo is not None:
                 estimate = np.maximum(estimate, uncertain_echo)
+            # Held with the room's decay for the whole-frame decision only (the robot's pauses
+            # must stay muted); the gain per bin follows the estimate, which holds the tail.
             self._residual = np.maximum(estimate, self._decay * self._residual)
-            gain = 1.0 - self._overestimate * self._residual / (error_power + 1e-12)
+            gain = 1.0 - self._overestimate * estimate / (error_power + 1e-12)
             gain = np.clip(gain, self._floor, 1.0)
             # Echo alone (nothing clearly above the residual): all of the frame goes down to
             # `mute`, so what is left of the robot's voice does not sound like speech to the VAD.

@@ -179,6 +179,50 @@ def test_the_coupling_is_learned_down_slowly_while_the_filter_is_new() -> None:
     assert np.max(suppressor.coupling_db) < -20.0
 
 
+@pytest.mark.unit
+def test_the_gain_follows_the_echo_estimate_while_the_frame_decision_holds_it() -> None:
+    """After a loud stretch of echo the estimate drops (the robot's next syllable is quiet): the
+    user over it passes whole at once (held, the estimate kept taking them down ~2 dB), while
+    echo left below the held estimate (the room's tail) keeps the frame muted."""
+    rng = np.random.default_rng(10)
+    quiet = np.full(161, np.sqrt(1e-6), dtype=np.complex128)
+    loud = np.full(161, np.sqrt(1e-2), dtype=np.complex128)
+
+    def run(error: np.ndarray, echo: np.ndarray, suppressor: ResidualEchoSuppressor) -> np.ndarray:
+        return np.concatenate(
+            [suppressor.process(error[k : k + 160], echo, quiet, True) for k in range(0, len(error), 160)]
+        )
+
+    after_loud_echo = []
+    for _ in range(2):
+        suppressor = _suppressor()
+        run(0.0056 * rng.standard_normal(50 * 160), loud, suppressor)  # echo left as loud as the estimate
+        after_loud_echo.append(suppressor)
+    user = 0.016 * rng.standard_normal(12 * 160)  # 9 dB above the loud echo left
+    out = run(user, quiet, after_loud_echo[0])
+    assert np.std(out[3 * 160 :]) >= 0.95 * np.std(user[2 * 160 : -160])
+    tail = 0.001 * rng.standard_normal(14 * 160)  # 15 dB below it
+    out = run(tail, quiet, after_loud_echo[1])
+    # once the 100 ms hangover some blocks of the loud stretch left is over
+    assert np.std(out[-3 * 160 :]) < 0.01 * np.std(tail)
+
+
+@pytest.mark.unit
+def test_a_new_filter_does_not_take_the_robots_unlearned_syllables_for_double_talk() -> None:
+    """While it learns, the filter's output jumps with every syllable it has not heard yet; its
+    variances account for that, so the robot alone is never double talk (before, 2.6 s of this
+    reply were, learning at a quarter step), while a user over the converged filter still is."""
+    far_alone = conversation(RATE, ROBOT_ROOM, echo_dbfs=-20.0)
+    with_user = conversation(RATE, ROBOT_ROOM, echo_dbfs=-20.0, user_dbfs=-26.0, user_at_s=(8.0,))
+    counts = []
+    for talk in (far_alone, with_user):
+        canceller = LinearEchoCanceller(block=160, partitions=80, step=1.0, margin_db=6.0)
+        cancel(canceller, to_float(talk.mic), to_float(talk.played))
+        counts.append(canceller.stats.double_talk_blocks)
+    assert counts[0] == 0
+    assert counts[1] > 0
+
+
 def cancel(
     canceller: LinearEchoCanceller, mic: np.ndarray, far: np.ndarray
 ) -> np.ndarray:  # whole signals, block by block
