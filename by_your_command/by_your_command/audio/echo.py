@@ -84,16 +84,12 @@ class EchoConfig:
     )
     aec_reference_wait_ms: int = field(
         default=48,
-        metadata={
-            "help": "aec: hold mic audio up to this long (linear: + stamp_tolerance_ms) for its reference"
-        },
+        metadata={"help": "aec: hold mic audio up to this long for its reference to arrive (adds latency)"},
     )
     aec_noise_suppression: bool = field(default=False, metadata={"help": "aec webrtc: also run WebRTC NS"})
     stamp_tolerance_ms: int = field(
         default=20,
-        metadata={
-            "help": "aec: a stamp this far off its stream's timeline restarts it (linear: lookahead too)"
-        },
+        metadata={"help": "aec: a mic or reference stamp this far off its stream's timeline restarts it"},
     )
     reference_history_ms: int = field(
         default=2000, metadata={"help": "aec: how much played audio to keep for alignment"}
@@ -412,16 +408,8 @@ class EchoController:
         tolerance_ns = config.stamp_tolerance_ms * 1_000_000
         self._mic_in = StampedResampler(sample_rate, tolerance_ns)
         self._reference_in = StampedResampler(sample_rate, tolerance_ns)
-        # Stamps within the tolerance are trusted, so the mic may be up to that much late against
-        # the reference; a speaker next to the mic leaves a few ms of acoustic delay, so the echo
-        # would come before its reference (no causal filter can cancel that). The linear filter
-        # therefore sees the reference up to the tolerance past each mic frame, and the mic may
-        # wait that much longer for it (AEC3 finds its own delay, and its guard compares levels
-        # frame by frame: it gets them aligned).
-        linear = self.mode is EchoMode.AEC and config.engine is AecEngine.LINEAR
-        self._lookahead_ns = tolerance_ns if linear else 0
+        self._wait_samples = config.aec_reference_wait_ms * sample_rate // 1000
         self._wait_ns = config.aec_reference_wait_ms * 1_000_000
-        self._wait_samples = (self._wait_ns + self._lookahead_ns) * sample_rate // NS_PER_S
         self._pending = np.zeros(0, dtype=np.int16)  # mic samples not yet through the AEC
         self._fed = 0  # mic samples fed to AEC3 so far (index of _pending[0])
         self._out_index = 0  # AEC3 output samples so far
@@ -476,9 +464,8 @@ class EchoController:
         self.stats.reference_restarts = self._reference_in.restarts
 
     def _add_reference_piece(self, piece: StampedPcm) -> None:
-        needed_until_ns = self._processed_until_ns + self._lookahead_ns
-        if piece.start_ns < needed_until_ns:  # that mic audio has gone out without it
-            late = (needed_until_ns - piece.start_ns) * self.sample_rate // NS_PER_S
+        if piece.start_ns < self._processed_until_ns:  # that mic audio has gone out without it
+            late = (self._processed_until_ns - piece.start_ns) * self.sample_rate // NS_PER_S
             self.stats.reference_samples_late += int(min(late, len(piece.pcm)))
         self._reference.add(piece.pcm, piece.start_ns)
 
@@ -541,7 +528,7 @@ class EchoController:
     def _reference_settled(self, frame_start_ns: int, frame_end_ns: int) -> bool:
         """True when the reference for this mic frame is in, or none is coming: nothing plays
         and the last reference ended more than aec_reference_wait_ms before the frame."""
-        if self._reference.end_ns >= frame_end_ns + self._lookahead_ns:
+        if self._reference.end_ns >= frame_end_ns:
             return True
         return not self._speaking and frame_start_ns >= self._reference.end_ns + self._wait_ns
 
@@ -564,7 +551,7 @@ class EchoController:
         processed = np.empty(ready, dtype=np.int16)
         for offset in range(0, ready, step):
             frame_start = self._input_time(self._fed + offset)
-            reference = self._reference.read(frame_start + self._lookahead_ns, step)
+            reference = self._reference.read(frame_start, step)
             cleaned = self._aec.process(self._pending[offset : offset + step], reference)
             mic = self._pending[offset : offset + step]
             if self._guard is not None and not self._guard.passes(mic, cleaned, reference):
