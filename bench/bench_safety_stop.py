@@ -6,16 +6,19 @@ interleaved in time order). Scenarios:
 
   over_reply  the user says a stop phrase while the robot speaks (its echo -20 dBFS RMS at the mic,
               the user -26 dBFS: a robot near its mic is louder there than a user a metre away)
-              gate: the raw mic, cancelled in the spotter (aec engine, audio_played); aec: the mic after
-              the echo_suppressor (what `audio_filtered` carries)
-              baseline: gate with the spotter's echo cancellation off (the raw mic)
+              gate: the raw mic, cancelled in the spotter (aec engine, audio_played)
+              aec: as the node runs it in aec mode (vad.yaml: stop_input_topic audio): the raw mic
+              beside audio_filtered, cancelled in the spotter as in gate mode (the same input)
+              aec_filtered: the spotter on the mic after the echo_suppressor (what `audio_filtered`
+              carries: stop_input_topic ''), the suppressor's controller kept across trials
+              gate_raw (baseline): gate with the spotter's echo cancellation off (the raw mic)
   quiet       a stop in a quiet room (asleep / muted: the spotter is fed the same in every state)
   own_reply   the robot's own replies saying stop / stopping / halt, played into the mic: false stops
   chat        the user's chat with stop-like words ("don't stop believing"): false stops
 
-Each mode is one robot listening for a while: the spotter (and in aec mode the echo_suppressor's
-controller) is kept across trials on one timeline, so AEC3 and its echo guard have converged on
-earlier replies, as on a robot that has been talking; each trial ends with 1.5 s of quiet.
+Each mode is one robot listening for a while: the spotter (and in aec_filtered mode the
+echo_suppressor's controller) is kept across trials on one timeline, so AEC3 and its echo guard
+have converged on earlier replies, as on a robot that has been talking; each trial ends with 1.5 s of quiet.
 Latency here = end of the word -> the spotter's decision on a real-time stream: the audio the
 decision waited for (the end silence, 32 ms blocks, the suppressor's reference wait) plus the
 compute of the block that decided. The ROS hop after it (guard condition, publish) is not in it.
@@ -149,8 +152,9 @@ class Stream:
 
     def __init__(self, mode: str, config: StopConfig) -> None:
         self.mode = mode
-        self.spotter = StopSpotter(config, cancel_echo=mode == "gate")
-        self.suppressor = EchoController(EchoConfig(mode="aec")) if mode == "aec" else None
+        self.spotter = StopSpotter(config, cancel_echo=mode in ("gate", "aec"))
+        filtered = mode == "aec_filtered"
+        self.suppressor = EchoController(EchoConfig(mode="aec")) if filtered else None
         self.clock = T0
         self.cpu_s = 0.0  # the spotter's compute (not the echo_suppressor's)
         self.audio_s = 0.0
@@ -301,7 +305,9 @@ def main() -> int:
     )
     parser.add_argument("--replies", type=int, default=200, help="own replies played into the mic")
     parser.add_argument("--quick", action="store_true", help="fewer voices and replies (a smoke run)")
-    parser.add_argument("--modes", default="gate,aec,gate_raw,quiet", help="detection scenarios to run")
+    parser.add_argument(
+        "--modes", default="gate,aec,aec_filtered,gate_raw,quiet", help="detection scenarios to run"
+    )
     parser.add_argument("--node-trials", type=int, default=20, help="stops through the real node (0: none)")
     args = parser.parse_args()
     config = StopConfig()
@@ -353,13 +359,14 @@ def main() -> int:
                             latencies.append(good[0].latency_s)
             spotter = stream.spotter
             print(
-                f"{set_name:8s} {mode:9s} detected {pct(hits, total)}, end of word -> decision: "
+                f"{set_name:8s} {mode:12s} detected {pct(hits, total)}, end of word -> decision: "
                 f"{p95(latencies)} (own_voice rejections {spotter.own_voice}, repeated {spotter.repeated}; "
                 f"spotter CPU {100 * stream.cpu_s / stream.audio_s:.1f} % of a core)",
                 flush=True,
             )
 
-    streams = {mode: Stream(mode, config) for mode in ("gate", "aec")}
+    # aec mode's spotter hears what it hears in gate mode (the raw mic): not played twice.
+    streams = {mode: Stream(mode, config) for mode in ("gate", "aec_filtered")}
     for stream in streams.values():
         stream.warm_up(warm)
     false_stops = dict.fromkeys(streams, 0)
@@ -372,8 +379,9 @@ def main() -> int:
             false_stops[mode] += len(found)
     for mode, count in false_stops.items():
         spotter = streams[mode].spotter
+        label = "gate, aec" if mode == "gate" else mode
         print(
-            f"own replies {mode:4s}: false stops {pct(count, args.replies)} "
+            f"own replies {label:12s}: false stops {pct(count, args.replies)} "
             f"(rejected as own voice {spotter.own_voice}, repeated {spotter.repeated})",
             flush=True,
         )

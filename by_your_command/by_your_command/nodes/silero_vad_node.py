@@ -8,7 +8,8 @@ utterance begun before the robot spoke to its end (vad/half_duplex.py). Sleep/wa
 wake phrase spoken while asleep, decoded here; the state is latched on `attention_state`. Logic
 lives in by_your_command.vad.
 
-Safety stop (`stop_spotter`): every input block also goes to a local stop spotter
+Safety stop (`stop_spotter`): every input block (or every block of `stop_input_topic`, the raw mic
+in aec mode) also goes to a local stop spotter
 (by_your_command.safety) before any gate, sleep or mute check, so a spoken "stop" is heard while
 the robot speaks, asleep and muted. A stop publishes `stop` on `response_cmd`, a blanket cut on
 `interruption_signal` (reason "safety_stop"), the phrase on `safety_stop`, and says "Stopping."
@@ -150,8 +151,13 @@ class SileroVadNode(Node):
         if not config.enabled:
             self.get_logger().warning("safety stop OFF (stop_spotter: false): a spoken 'stop' is not heard")
             return None
-        cancel = self.config.echo_gate and config.cancel_echo
+        cancel = self.config.stop_cancels_echo
         spotter = StopSpotter(config, cancel_echo=cancel)
+        topic = self.config.stop_topic
+        if topic != self.config.input_topic:
+            # Its own input (aec mode: the raw mic beside audio_filtered): the echo_suppressor's
+            # residual suppression and echo muting took the user's stop with the robot's voice.
+            self.create_subscription(AudioChunk, topic, self._spot, AUDIO_IN)
         self._stop_voice = self._synthesize_stop_voice(config.reply_text)
         self.cmd_pub = self.create_publisher(String, "response_cmd", RELIABLE)
         self.interruption_pub = self.create_publisher(Interruption, "interruption_signal", RELIABLE)
@@ -162,7 +168,7 @@ class SileroVadNode(Node):
         self._stop_guard = self.create_guard_condition(self._on_stops_heard)
         self.get_logger().info(
             f"safety stop on: {list(config.stop_phrases)} ({config.language}) heard in every state, "
-            f"mic {'echo-cancelled with audio_played' if cancel else 'as received'}, "
+            f"mic '{topic}' {'echo-cancelled with audio_played' if cancel else 'as received'}, "
             f"reply {config.reply_text!r}"
         )
         return SpotterWorker(spotter, self._stop_heard, self._stop_heard)
@@ -208,6 +214,11 @@ class SileroVadNode(Node):
             f"SAFETY STOP #{self.safety_stops}: heard {detection.text!r}, "
             f"{(now - detection.voice_end_ns) / 1e6:.0f} ms after the word ended; `stop` routed, replies cut"
         )
+        # DDS drops what a publisher sends before it has matched a subscriber: say so, never silently.
+        if self.cmd_pub.get_subscription_count() == 0:
+            self.get_logger().error("SAFETY STOP reached no one: nothing subscribes to response_cmd")
+        if self.safety_pub.get_subscription_count() == 0:
+            self.get_logger().warning("safety stop: nothing subscribes to safety_stop: no agent was told")
 
     def _safety_stop_msg(self, detection: Detection) -> SafetyStop:
         """The stop, naming the published utterance that holds its word (utterance ids are the mic
@@ -309,7 +320,8 @@ class SileroVadNode(Node):
 
     def _on_audio(self, msg: AudioChunk) -> None:
         self._last_audio = time.monotonic()
-        self._spot(msg)  # before the gate, sleep and mute: safety hears everything
+        if self.config.stop_topic == self.config.input_topic:
+            self._spot(msg)  # before the gate, sleep and mute: safety hears everything
         if self._gated(msg):
             self.blocks_gated += 1
             if self.detector.streaming:  # a held utterance reached the end of its hold

@@ -52,7 +52,16 @@ FRAME_S = 0.01  # pocketsphinx's frame
 NEAR_MISSES = "stopping stopwatch bus believing freezer nonstop".split()
 # Garbage words a short stop is mistaken for (espeak voices, bench/bench_safety_stop.py): left out
 # of the model, so that a clipped "stop" still goes to "stop". The cost: "I saw" alone may stop.
+# (Also leaving out "only", "call", "lot", "also", "oh", heard for a "halt" or British "stop" over
+# the robot's voice, heard no more stops on the tuned voices, and one more of the robot's own replies
+# stopped it: residual echo heard "on" with a keyphrase hit.)
 CONFUSABLE = frozenset("saw tell still told old all both so open talk over going".split())
+# A one-word transcript a short stop the keyphrase search heard is written as over the robot's
+# voice (bench/bench_safety_stop.py): "don't", a "stop" whose /s/ the echo suppressor took. Alone
+# it negates nothing: with the keyphrase hit it stands for a stop. Not "stopping" (a clipped "stop
+# it"): the robot's own "Stopping." played into the mic then stopped it; not "oh" or "won't": with
+# a looser keyphrase threshold they let the robot's own replies stop it.
+KEYWORD_ALONE = frozenset({"don't"})
 # Accents the en-us dictionary lacks: the British short o of "stop" and "halt" (/ɒ/: "stop" in
 # en-gb voices was heard as "call" or "don't"), as extra pronunciations of the stop words.
 ACCENT_VARIANTS: dict[str, tuple[str, ...]] = {"stop": ("S T AO P",), "halt": ("HH AA L T",)}
@@ -111,10 +120,14 @@ class StopMatcher:
         return () if any(_negation(w) for w in words[:first]) else tuple(found)
 
     def may_be_stop(self, text: str) -> bool:
-        """One word, no negation, no near miss: a keyphrase hit may stand. (Nothing heard at all is
-        residual echo or noise, where the keyphrase search fires on its own; two words are a short
-        command: "wake up", heard "we cup", fired the keyphrase search in the demo.)"""
-        words = [w for w in words_of(text) if w not in FILLER_WORDS]
+        """One word, no negation, no near miss (but `KEYWORD_ALONE`): a keyphrase hit may stand.
+        (Nothing heard at all is residual echo or noise, where the keyphrase search fires on its
+        own; two words are a short command: "wake up", heard "we cup", fired the keyphrase search
+        in the demo.)"""
+        heard = words_of(text)
+        if len(heard) == 1 and heard[0] in KEYWORD_ALONE:
+            return True
+        words = [w for w in heard if w not in FILLER_WORDS]
         if any(_negation(w) or w in NEAR_MISSES for w in words):
             return False
         return len(words) == 1

@@ -42,6 +42,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
+# 1e-30 heard 98.8 % of stops over the robot's voice (tuned voices, with "oh" alone) but stopped
+# the robot on 2 of 200 of its own replies (residual echo heard "but", "oh"): not looser.
 KWS_THRESHOLD = 1e-20
 # While the robot speaks, a stop waits until its voice is known this far past the stop's end: a
 # stop-like word it is in the middle of ("I stopped...") is recognised only at its end. The

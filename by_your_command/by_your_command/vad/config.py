@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 from by_your_command.safety.config import DEFAULT_STOP_PHRASES, StopConfig
@@ -10,6 +11,7 @@ from by_your_command.vad.attention import PhraseMatcher
 
 DEFAULT_WAKE_PHRASES = ["wake up", "wakeup", "awaken", "wake"]
 DEFAULT_SLEEP_PHRASES = ["go to sleep", "sleeptime", "sleep"]
+_TOPIC = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(?:/[A-Za-z_][A-Za-z0-9_]*)*$")  # a ROS name, no ~ or {}
 
 
 @dataclass(frozen=True)
@@ -140,12 +142,24 @@ class VadConfig:
     stop_cancel_echo: bool = field(
         default=StopConfig.cancel_echo,
         metadata={
-            "help": "echo_gate: the spotter hears the mic with the robot's voice cancelled (aec engine)"
+            "help": "the spotter hears the mic with the robot's voice cancelled (aec engine, audio_played) "
+            "under echo_gate, or when stop_input_topic is its own"
+        },
+    )
+    stop_input_topic: str = field(
+        default="",
+        metadata={
+            "help": "the spotter's audio; '' = input_topic. Another topic (the raw mic `audio` when "
+            "input_topic is audio_filtered) is echo-cancelled by the spotter itself (stop_cancel_echo)"
         },
     )
 
     def __post_init__(self) -> None:
         self.stop_config  # noqa: B018  raises ValueError on a bad stop_* parameter
+        if self.stop_input_topic and not _TOPIC.match(self.stop_input_topic):
+            raise ValueError(
+                f"stop_input_topic {self.stop_input_topic!r} is not a topic name ('' = input_topic)"
+            )
         if not 0.0 < self.threshold < 1.0:
             raise ValueError(f"threshold must be in (0, 1), got {self.threshold}")
         if self.neg_threshold >= self.threshold:
@@ -190,6 +204,18 @@ class VadConfig:
             own_voice_window_ms=self.stop_own_voice_window_ms,
             cancel_echo=self.stop_cancel_echo,
         )
+
+    @property
+    def stop_topic(self) -> str:
+        """The topic the stop spotter hears."""
+        return self.stop_input_topic or self.input_topic
+
+    @property
+    def stop_cancels_echo(self) -> bool:
+        """The spotter cancels the robot's voice itself: its input still holds it (echo_gate's raw
+        mic, or a topic of its own beside an echo-cancelled input_topic)."""
+        own_input = self.stop_topic != self.input_topic
+        return self.stop_spotter and self.stop_cancel_echo and (self.echo_gate or own_input)
 
     @property
     def gap_tolerance_ns(self) -> int:

@@ -126,10 +126,32 @@ def test_a_spoken_stop_is_obeyed_while_the_robot_speaks_asleep_and_muted_but_not
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize("param", ["stop_language:=klingon", "stop_phrases:=[stop,blorptastic]"])
+def test_in_aec_mode_the_spotter_hears_the_raw_mic_beside_audio_filtered(ros_namespace: str) -> None:
+    command = node("silero_vad_node", ros_namespace, "input_topic:=audio_filtered", "stop_input_topic:=audio")
+    with probe_node(ros_namespace) as probe, running_process(command) as vad:
+        check = alive(vad)
+        states = probe.listen(String, "attention_state", LATCHED)
+        stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
+        room = Room(probe)  # publishes the mic on `audio` only
+        spin_until(
+            probe,
+            check,
+            lambda: states and room.mic.get_subscription_count(),
+            timeout=30,
+            what="the VAD node",
+        )
+        room.play(user=said("halt"))
+        spin_until(probe, check, lambda: len(stops) == 1, timeout=30, what="the stop")
+        assert stops[0].phrase == "halt"
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    "param", ["stop_language:=klingon", "stop_phrases:=[stop,blorptastic]", "stop_input_topic:=blorp//tastic"]
+)
 def test_a_bad_stop_configuration_stops_the_node_at_start(ros_namespace: str, param: str) -> None:
     command = node("silero_vad_node", ros_namespace, "input_topic:=audio", param)
     with running_process(command) as vad:
         output, _ = vad.communicate(timeout=60)
     assert vad.returncode != 0
-    assert "klingon" in output or "blorptastic" in output
+    assert "klingon" in output or "blorptastic" in output or "blorp//tastic" in output

@@ -94,6 +94,8 @@ def test_matcher_leans_to_detect_but_never_on_a_negation() -> None:
         ({"stop_phrases": ["stop", ""]}, "is not a phrase"),
         ({"stop_refractory_ms": -1}, "stop_refractory_ms"),
         ({"stop_end_silence_ms": 5}, "stop_end_silence_ms"),
+        ({"stop_input_topic": "raw mic"}, "stop_input_topic 'raw mic' is not a topic name"),
+        ({"stop_input_topic": "audio//raw"}, "is not a topic name"),
     ],
 )
 def test_a_bad_stop_configuration_is_refused(params: dict[str, object], message: str) -> None:
@@ -151,7 +153,19 @@ def test_a_negation_only_before_the_stop_takes_it_back() -> None:
     # After the stop it takes nothing back ("stop, don't!"); over the robot's voice a second
     # "stop" clipped by the echo guard came out "don't" or "not".
     assert matcher.is_stop("stop don't") and matcher.is_stop("stop not") and matcher.is_stop("stop it don't")
-    assert not matcher.may_be_stop("don't")
+    assert not matcher.is_stop("don't") and not matcher.may_be_stop("no") and not matcher.may_be_stop("not")
+
+
+@pytest.mark.unit
+def test_a_keyphrase_hit_heard_as_a_lone_dont_stands() -> None:
+    # Over the robot's voice a short stop the keyphrase search heard was written "don't" (its /s/
+    # taken): alone, a stop.
+    matcher = StopMatcher(["stop", "halt", "stop it", "stop stop"], max_other_words=1)
+    assert matcher.may_be_stop("don't") and matcher.may_be_stop("Don't!")
+    # Not with anything around it, nor when nothing was heard, nor a near miss or another negation.
+    assert not any(
+        matcher.may_be_stop(t) for t in ["oh don't", "don't go", "", "stopping", "stopwatch", "no", "won't"]
+    )
 
 
 @pytest.mark.unit
@@ -166,3 +180,19 @@ def test_the_spotters_echo_suppressor_is_gentler_than_the_echo_suppressor_nodes(
     assert echo is not None
     assert echo.config.mode == "aec"
     assert echo.config.echo_guard_margin_db < EchoConfig().echo_guard_margin_db
+
+
+@pytest.mark.unit
+def test_the_spotter_cancels_the_robots_voice_on_a_raw_mic_of_its_own() -> None:
+    # aec mode: the VAD hears audio_filtered, the spotter the raw mic beside it, echo-cancelled
+    # itself (the echo_suppressor's residual suppression took stops said over the robot).
+    aec = VadConfig(input_topic="audio_filtered", stop_input_topic="audio")
+    assert aec.stop_topic == "audio" and aec.stop_cancels_echo
+    assert not VadConfig(
+        input_topic="audio_filtered", stop_input_topic="audio", stop_cancel_echo=False
+    ).stop_cancels_echo
+    same = VadConfig(input_topic="audio", stop_input_topic="audio")  # external: no robot voice to cancel
+    assert same.stop_topic == "audio" and not same.stop_cancels_echo
+    assert VadConfig(input_topic="audio", stop_input_topic="audio", echo_gate=True).stop_cancels_echo
+    default = VadConfig()
+    assert default.stop_topic == default.input_topic and not default.stop_cancels_echo
