@@ -143,6 +143,10 @@ def test_in_aec_mode_the_spotter_hears_the_raw_mic_beside_audio_filtered(ros_nam
         room.play(user=said("halt"))
         spin_until(probe, check, lambda: len(stops) == 1, timeout=30, what="the stop")
         assert stops[0].phrase == "halt"
+    # Nothing here subscribes to response_cmd: the stop reached no command processor, and the node
+    # says so (DDS drops what a publisher sends unmatched, without a word).
+    output = vad.stdout.read() if vad.stdout else ""
+    assert "SAFETY STOP reached no one: nothing subscribes to response_cmd" in output
 
 
 @pytest.mark.ros
