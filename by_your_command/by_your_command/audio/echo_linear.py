@@ -118,7 +118,6 @@ class LinearEchoCanceller:
         self._error_power = np.zeros(bins)
         # Echo the foreground may still miss per bin (its coefficients' variance x the reference).
         self.uncertain_echo: FloatArray = np.zeros(bins)
-        self._uncertain_for = (-1, -1)  # (block, foreground_updates) uncertain_echo is for
         self._uncertain_smoothed = 0.0  # its energy per block, smoothed as the detector's energies
         self._background_error = 0.0
         self._foreground_error = 0.0
@@ -152,8 +151,7 @@ class LinearEchoCanceller:
             self._adapt(background_error, DOUBLE_TALK_STEP if double_talk else 1.0)
             self._compare(foreground_error, background_error, copy=not double_talk)
         self.echo_spectrum = foreground_echo
-        if self._uncertain_for != (self.stats.blocks, self.stats.foreground_updates):  # stale
-            self._uncertain_energy()
+        self._uncertain_energy()  # for the suppressor: the foreground may have just been copied
         self.stats.blocks += 1
         return foreground_error
 
@@ -161,7 +159,6 @@ class LinearEchoCanceller:
         """Updates `uncertain_echo` for the latest reference and the foreground's variances;
         returns it as the error energy per block (sample domain) it stands for."""
         self.uncertain_echo = 0.5 * np.einsum("pk,pk->k", self._history_power, self._foreground_uncertainty)
-        self._uncertain_for = (self.stats.blocks, self.stats.foreground_updates)
         # Parseval on the zero-padded frame: the block's energy is the half spectrum's over n.
         return float(np.sum(self.uncertain_echo)) / self.block
 
