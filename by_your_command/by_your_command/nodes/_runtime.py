@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -28,6 +29,12 @@ SPIN_STOP_TIMEOUT_S = 5.0  # a callback still running after this is abandoned (l
 # handler then runs only once the main thread wakes, so its wait wakes this often to let it.
 SIGNAL_CHECK_S = 1.0
 ACK_TIMEOUT_S = 2.0  # total wait for subscribers to acknowledge the last reliable messages
+# Every step of a stop is bounded (about 9 s in practice); rclpy's and DDS's teardown and the
+# interpreter's exit are not (a bridge once hung there past 30 s in CI, cause unknown: nothing was
+# printed). A stop still running after this is stuck: every thread's
+# stack goes to stderr and the process exits with EXIT_FAILED. Below launch's sigterm_timeout (20 s
+# here), whose SIGTERM would end the process without saying where it was stuck.
+STOP_DEADLINE_S = 18.0
 EXIT_FAILED = 1
 
 _log = get_logger("run_node")
@@ -52,7 +59,8 @@ class _StopRequest:
         verdict = self.requests.receive(signum)
         if verdict is StopVerdict.EXIT_NOW:
             # The graceful path is stuck (a hook, a callback, DDS): the user insists.
-            _say(f"second {name}: exiting now")
+            _say(f"second {name}: exiting now; where the stop was:")
+            faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
             os._exit(128 + signum)
         if verdict is StopVerdict.SAME_STOP:
             _say(f"{name} again right away (the same Ctrl-C, sent twice): still stopping in order")
@@ -63,6 +71,14 @@ class _StopRequest:
     def on_failure(self, error: BaseException) -> None:
         self.failure = error
         self.event.set()
+
+
+def _arm_stop_deadline() -> None:
+    """Once stopping, the process ends by STOP_DEADLINE_S (armed until it exits: the interpreter's
+    own exit joins threads too). Only in the main thread: a test running run_node in a thread keeps
+    its process."""
+    if threading.current_thread() is threading.main_thread():
+        faulthandler.dump_traceback_later(STOP_DEADLINE_S, exit=True, file=sys.stderr)
 
 
 class _StopFuture(Future):
@@ -175,8 +191,10 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None, t
     4. the node is destroyed (`destroy_node` may still publish and close devices), rclpy shut down.
 
     A second signal exits at once (status 128 + signal), except a SIGINT repeated right away: that
-    is one Ctrl-C sent twice (terminal and launcher; by_your_command.stop_signals). An exception
-    escaping a callback is logged and stops the node the same way, then the process exits with 1.
+    is one Ctrl-C sent twice (terminal and launcher; by_your_command.stop_signals), and says where
+    the stop was (every thread's stack). A stop that outlasts STOP_DEADLINE_S does the same by
+    itself and exits with 1. An exception escaping a callback is logged and stops the node the same
+    way, then the process exits with 1.
     """
     rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
     stop = _StopRequest()
@@ -192,6 +210,7 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None, t
         spinner.start()
         while not stop.event.wait(SIGNAL_CHECK_S):
             pass  # the timeout lets the main thread run a handler whose signal another thread took
+        _arm_stop_deadline()
         if not spinner.stop():
             _log.error(f"a callback still runs after {SPIN_STOP_TIMEOUT_S} s: stopping without it")
             clean = False

@@ -113,17 +113,22 @@ def test_a_second_signal_ends_a_stop_that_hangs(ros_namespace: str) -> None:
         spin_until(probe, lambda: states[-1].data == "stopping", stuck, "before_shutdown to start")
         stuck.send_signal(signal.SIGTERM)
         spin_until(probe, lambda: exited(stuck), None, "the second signal to end the process")
-        assert stuck.returncode == 128 + signal.SIGTERM
-        assert "second SIGTERM" in output(stuck)
+        text = output(stuck)
+        assert stuck.returncode == 128 + signal.SIGTERM, text
+        assert "second SIGTERM" in text, text
+        assert "in before_shutdown" in text, text  # where the stop was stuck
 
 
-def stuck_node(namespace: str, duplicate_window_s: float) -> list[str]:
-    """The stuck node, with stop_signals' window for a repeated SIGINT set (no timing in the test)."""
+def stuck_node(namespace: str, duplicate_window_s: float, stop_deadline_s: float = 3600.0) -> list[str]:
+    """The stuck node, with stop_signals' window for a repeated SIGINT and run_node's stop deadline
+    set (no timing in the test)."""
     code = (
         "import runpy, sys\n"
         "import by_your_command.stop_signals as stop_signals\n"
+        "import by_your_command.nodes._runtime as runtime\n"
         "stop_signals.DUPLICATE_WINDOW_S = float(sys.argv[1])\n"
-        "sys.argv = sys.argv[2:]\n"
+        "runtime.STOP_DEADLINE_S = float(sys.argv[2])\n"
+        "sys.argv = sys.argv[3:]\n"
         "runpy.run_path(sys.argv[0], run_name='__main__')\n"
     )
     return [
@@ -131,10 +136,25 @@ def stuck_node(namespace: str, duplicate_window_s: float) -> list[str]:
         "-c",
         code,
         str(duplicate_window_s),
+        str(stop_deadline_s),
         str(RUNTIME_NODES),
         "stuck",
         *ros_args(namespace),
     ]
+
+
+@pytest.mark.ros
+def test_a_stop_stuck_past_its_deadline_ends_and_says_where(ros_namespace: str) -> None:
+    """Teardown (rclpy, DDS) can hang where no bound of ours reaches: with one signal only, the
+    process still ends, non-zero, with the stack of the stuck step (here before_shutdown)."""
+    with probe_node(ros_namespace) as probe, running_process(stuck_node(ros_namespace, 0.0, 1.0)) as stuck:
+        states = probe.listen(String, "runtime_state", LATCHED)
+        spin_until(probe, lambda: states and states[-1].data == "running", stuck, "the node to run")
+        stuck.send_signal(signal.SIGTERM)
+        spin_until(probe, lambda: exited(stuck), None, "the stuck stop to end by itself")
+        text = output(stuck)
+        assert stuck.returncode == 1, text
+        assert "in before_shutdown" in text, text
 
 
 @pytest.mark.ros
