@@ -19,9 +19,8 @@ from typing import Any
 
 from by_your_command.agents.barge_in import BargeInWatch, PendingBargeIn, Rules, Verdict
 from by_your_command.agents.clock import Clock, LoopClock
-from by_your_command.agents.config import AgentConfig, AgentRole, ContextSource
+from by_your_command.agents.config import AgentConfig, ContextSource
 from by_your_command.agents.context import ContextStore
-from by_your_command.agents.delegation import match_tool
 from by_your_command.agents.events import (
     AssistantAudio,
     AssistantText,
@@ -57,24 +56,20 @@ from by_your_command.agents.inputs import (
     UtteranceChunk,
     VoiceActivity,
 )
-from by_your_command.agents.metrics import (
-    Counters,
-    SessionMetrics,
-    SessionOpenedMetrics,
-    TurnMetrics,
-)
+from by_your_command.agents.metrics import Counters
+from by_your_command.agents.model_tool_calls import ModelToolCalls
 from by_your_command.agents.outbox import Outbox
 from by_your_command.agents.overlap_words import interrupting_words
 from by_your_command.agents.port import PlayerAction, PortClosed, RobotPort, VoiceChunk
-from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup, ToolResult, ToolSpec
+from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup, ToolResult
 from by_your_command.agents.reply_audio import ReplyAudio
 from by_your_command.agents.reply_words import ReplyWords
+from by_your_command.agents.reports import AgentReports
 from by_your_command.agents.robot_calls import (
     RobotCalls,
     is_stop_request,
 )
 from by_your_command.agents.robot_runner import LATE_RESULT_NOTE, RobotToolRunner, SendFailed
-from by_your_command.agents.robot_tool import ROBOT_COMMAND_TOOL, result_json, verdicts_json
 from by_your_command.agents.rotation import ROTATION, SessionEnd
 from by_your_command.agents.session import (
     AddContext,
@@ -92,18 +87,11 @@ from by_your_command.agents.session import (
     SessionOpened,
     SessionTimeouts,
 )
-from by_your_command.agents.tool_calls import (
-    PendingVerdicts,
-    Refuse,
-    ResponseResults,
-    RunRobotTool,
-    decide,
-    robot_tool_spec,
-)
+from by_your_command.agents.tool_calls import PendingVerdicts
 from by_your_command.agents.turn import Turn
 from by_your_command.audio.pcm import StreamResampler
 from by_your_command.net.backoff import backoff_s
-from by_your_command.tools.catalog import Catalog, CatalogError, RobotTool
+from by_your_command.tools.catalog import RobotTool
 
 log = logging.getLogger(__name__)
 
@@ -118,9 +106,6 @@ SAFETY_STOP_NOTE = (
     '"{phrase}" (the robot heard this itself and stopped at once: every motion command was '
     'stopped and the reply cut; it said "Stopping.")'
 )
-# A tool call's command is routed once the provider events queued behind it are handled (a
-# cancellation may be among them), but never held behind more than this many.
-MAX_ROUTE_DEFERRALS = 64
 # A deadline this close is due now: sums of float times land a rounding error short of a
 # deadline, and a wait of 1e-16 s never advances the clock (the loop would spin on it).
 DEADLINE_SLACK_S = 1e-6
@@ -201,27 +186,42 @@ class AgentRuntime:
         self._reply: ReplyAudio | None = None  # the latest spoken reply (may still be playing)
         self._cut: deque[str] = deque(maxlen=RECENT_CUTS)  # responses cut by a confirmed barge-in
         self._watch = BargeInWatch(self._barge_rules)  # the barge-in being judged, if any
-        self._tools = PendingVerdicts()
-        self._results = ResponseResults()
-        self._catalog = Catalog(())  # the robot's own tools, from `robot_tools` (docs/tools.md)
+        # Stream (and request) ids name this run too: a restarted agent's first reply must not
+        # continue (or be dropped as) the stream its dead predecessor left in the player under the same id.
+        self._run = secrets.token_hex(3)
+        verdicts = PendingVerdicts()  # robot_command calls, and robot tools that are commands
         self.robot_calls = RobotCalls()
+        self._tool_calls = ModelToolCalls(
+            config,
+            self.counters,
+            verdicts,
+            self.robot_calls,
+            port,
+            run=self._run,
+            publish=self._publish,
+            now=self._clock.now,
+            turn=lambda: self._turn_out,
+            session=lambda: self._session,
+            start_robot=self._start_robot_call,
+            stop_robot=lambda reason: self._robot.cancel_all(reason),
+            result_turn=self._queue_result_turn,
+            answered=self._tool_answered,
+        )
         self._robot = RobotToolRunner(
             config.agent_id,
             self.robot_calls,
-            self._tools,
+            verdicts,
             config.tool_verdict_timeout_s,
             port,
             self._clock,
-            new_request_id=self._new_request_id,
+            new_request_id=self._tool_calls.new_request_id,
             publish=self._publish,
             post=self._queue.put_nowait,
-            deliver=self._deliver_tool_result,
+            deliver=self._tool_calls.deliver,
             tell_late=lambda note: self._queue_result_turn(-1, (), note),
             session=lambda: self._session,
         )
-        self._requests = 0  # command requests sent: their ids name this run and this count
         self._provider_backlog = 0  # session messages in the queue, not handled yet
-        self._route_deferrals = 0
         self._frames = FrameChoice(config.max_frame_age_s)
         self._words = ReplyWords(
             config,
@@ -236,10 +236,14 @@ class AgentRuntime:
         )
         self._utterance_ended_at = float("-inf")  # frames kept from before this are stale
         self._outbox = Outbox(config.agent_id, config.publish_timeout_s, self._count_publish_failure)
+        self._reports = AgentReports(
+            config.agent_id,
+            port,
+            publish=self._publish,
+            now=self._clock.now,
+            conversation_id=lambda: self.context.conversation_id,
+        )
         self._streams = 0
-        # Stream ids name this run too: a restarted agent's first reply must not continue (or be
-        # dropped as) the stream its dead predecessor left in the player under the same id.
-        self._run = secrets.token_hex(3)
         self._last_activity = 0.0  # last exchange with the provider or the player (pause timer)
         self._awaited_at = 0.0  # last sign of life of the reply due (reply deadline)
         self._committed_at = 0.0  # when the latest turn was committed (orders late user transcripts)
@@ -278,7 +282,7 @@ class AgentRuntime:
                     if item is not None:
                         await self._handle(item)
                     await self._run_due()
-                    await self._route_commands()
+                    self._tool_calls.route(self._provider_backlog)
                 except AgentFatal:
                     raise
                 except Exception:
@@ -381,7 +385,7 @@ class AgentRuntime:
         barge_deadline = self._watch.deadline()
         if barge_deadline is not None:
             found.append(_Deadline(barge_deadline, "barge-in", self._judge_barge))
-        tool_deadline = self._tools.next_deadline()
+        tool_deadline = self._tool_calls.next_deadline()
         if tool_deadline is not None:
             found.append(_Deadline(tool_deadline, "tool verdict", self._tool_verdicts_late))
         calls_deadline = self.robot_calls.next_deadline()
@@ -419,7 +423,7 @@ class AgentRuntime:
             and self._turn_out is None
             and not self._waiting
             and self._watch.pending is None
-            and len(self._tools) == 0
+            and self._tool_calls.waiting() == 0
             # a running action keeps its session: only that session can take the call's result
             and not (self.robot_calls and self.config.keep_session_while_acting)
             and self._reconnect_at is None
@@ -459,7 +463,7 @@ class AgentRuntime:
         elif isinstance(item, CameraFrame):
             self._on_frame(item)
         elif isinstance(item, CommandStatus):
-            self._on_verdict(item)
+            self._tool_calls.on_verdict(item)
         elif isinstance(item, InputLost):
             self.counters.inputs_lost += item.count if item.count is not None else 1
             log.warning(
@@ -698,7 +702,7 @@ class AgentRuntime:
 
     async def _finish_turn(self, turn: Turn, outcome: str, why: str = "") -> None:
         now = self._clock.now()
-        self._publish_turn(turn, outcome, why)
+        self._reports.turn(turn, outcome, why, self._serial, self._session, self._reply)
         if self._turn_out is turn:
             self._turn_out = None
         self.counters.turns += 1
@@ -710,48 +714,6 @@ class AgentRuntime:
             self._commit(self._waiting.popleft())
         if self._idle(now) and (self._end.asked or self._end.rotation_due(self._session, now)):
             await self._close_session(self._end.asked or ROTATION)
-
-    def _publish_turn(self, turn: Turn, outcome: str, why: str) -> None:
-        """The turn's record on `metrics`: a failure and its reason are a report for monitors,
-        never words on `response_text` (which is the robot's speech and the conversation)."""
-        now = self._clock.now()
-        ended = turn.ended_at if turn.ended_at is not None else now
-        first = None if turn.first_audio_at is None else round(1000.0 * (turn.first_audio_at - ended), 1)
-        record = TurnMetrics(
-            self.config.agent_id,
-            self.context.conversation_id,
-            self._serial,
-            turn.number,
-            turn.kind,
-            outcome,
-            first,
-            round(1000.0 * (now - ended), 1),
-            turn.usage,
-            self._session.provider.name if self._session is not None else "",
-            why,
-            self._reply_stream(turn),
-        )
-        log.log(
-            logging.WARNING if why else logging.INFO,
-            "agent %s: turn %d %s (%s)%s, first audio %s ms, reply %.0f ms, tokens in %d out %d",
-            self.config.agent_id,
-            turn.number,
-            outcome,
-            turn.kind,
-            f": {why}" if why else "",
-            first,
-            record.reply_ms,
-            turn.usage.input_tokens,
-            turn.usage.output_tokens,
-        )
-        self._publish("metrics", partial(self._port.publish_metrics, record))
-
-    def _reply_stream(self, turn: Turn) -> str:
-        """The stream now playing the turn's reply (after any resume), "" if none was published."""
-        reply = self._reply
-        if reply is None or reply.turn != turn.number or reply.stream_started_at is None:
-            return ""
-        return reply.stream_id
 
     async def _fail_turn(self, turn: Turn, why: str) -> None:
         self.counters.turns_failed += 1
@@ -1030,13 +992,7 @@ class AgentRuntime:
             return  # from a session already closed
         if isinstance(message, SessionOpened):
             self.counters.sessions_opened += 1
-            log.info(
-                "agent %s: session %d open (%s)", self.config.agent_id, session.serial, session.provider.name
-            )
-            opened = SessionOpenedMetrics(
-                self.config.agent_id, self.context.conversation_id, session.serial, session.provider.name
-            )
-            self._publish("metrics", partial(self._port.publish_metrics, opened))
+            self._reports.session_opened(session)
         elif isinstance(message, SessionFailed):
             await self._lose_session(message.reason, message.connected, message.error)
         else:
@@ -1073,9 +1029,10 @@ class AgentRuntime:
             if event.final:
                 self._words.text_reply(event.text, event.response_id)
         elif isinstance(event, ToolCall):
-            await self._on_tool_call(session, turn, event)
+            self._tool_calls.on_call(session.serial, turn, event, self._duplex)
         elif isinstance(event, ToolCallCancelled):
-            await self._on_tool_calls_cancelled(event)
+            if self._tool_calls.on_cancelled(event) and turn is not None:
+                await self._finish_turn(turn, "cancelled")
         elif isinstance(event, ResponseDone):
             await self._on_response_done(session, turn, event)
         elif isinstance(event, Interrupted):
@@ -1123,173 +1080,27 @@ class AgentRuntime:
         if turn is not None and turn.first_audio_at is None:
             turn.first_audio_at = self._clock.now()
 
-    async def _on_tool_call(self, session: Session, turn: Turn | None, call: ToolCall) -> None:
-        self.counters.tool_calls += 1
-        self._results.expect(session.serial, call.response_id, call.call_id, turn.number if turn else 0)
-        if turn is not None:
-            turn.tool_calls_open.add(call.call_id)
-            turn.tool_responses.add(call.response_id)
-        decision = decide(call, self.config.role is AgentRole.TOOLS, self._catalog)
-        if isinstance(decision, RunRobotTool):
-            self._start_robot_call(session, decision.tool, call)
-            return
-        if isinstance(decision, Refuse):
-            self._deliver_tool_result(call.call_id, decision.output)
-            return
-        command = decision.command
-        if is_stop_request(command):  # the model stops the robot: its actions too
-            self._robot.cancel_all(f"stopped ({command!r})")
-        elif self._duplex and await self._delegate_to_robot_tool(session, call, command):
-            return
-        self._tools.add(
-            call.call_id,
-            self._new_request_id(),
-            command,
-            self._clock.now() + self.config.tool_verdict_timeout_s,
-        )
-        # routed by _route_commands, after the provider events already queued behind this call
-
-    async def _delegate_to_robot_tool(self, session: Session, call: ToolCall, said: str) -> bool:
-        """A full-duplex delegation carries the user's words, not a tool: one of the robot's tools
-        when they are its declared phrase (agents/delegation.py)."""
-        specs = [robot_tool_spec(tool) for tool in self._catalog.tools]
-        delegated = match_tool(said, specs)
-        tool = self._catalog.get(delegated.tool) if delegated is not None else None
-        if delegated is None or tool is None:
-            return False
-        log.info("agent %s: delegation %r → %s", self.config.agent_id, said[:80], tool.name)
-        named = ToolCall(call.response_id, call.call_id, tool.name, delegated.arguments)
-        self._start_robot_call(session, tool, named)
-        return True
-
-    async def _route_commands(self) -> None:
-        """Publish the commands of tool calls once no provider event waits in the queue: a
-        cancellation that came with the call withdraws a command the robot never saw."""
-        waiting = self._tools.unrouted()
-        if not waiting:
-            self._route_deferrals = 0
-            return
-        if self._provider_backlog > 0 and self._route_deferrals < MAX_ROUTE_DEFERRALS:
-            self._route_deferrals += 1
-            return
-        self._route_deferrals = 0
-        for call in waiting:
-            self._tools.routed(call.request_id)
-            self._publish(
-                "command_request", partial(self._port.publish_command_request, call.request_id, call.command)
-            )
-
-    async def _on_tool_calls_cancelled(self, event: ToolCallCancelled) -> None:
-        turn = self._turn_out
-        had_open = turn is not None and bool(turn.tool_calls_open)
-        for call_id in event.call_ids:
-            robot_call = self.robot_calls.by_call_id(call_id)
-            if robot_call is not None:  # the robot goes on (only a stop cancels); its end becomes a note
-                robot_call.orphaned = True
-                if turn is not None:
-                    turn.tool_calls_open.discard(call_id)
-                continue
-            withdrawn = self._tools.cancel(call_id)
-            if withdrawn is None:
-                continue  # answered already (or never ours): nothing to withdraw
-            call, routed = withdrawn
-            self.counters.tool_calls_cancelled += 1
-            if not routed:
-                self.counters.commands_withheld += 1
-            log.info(
-                "agent %s: the provider cancelled tool call %s (%r): %s",
-                self.config.agent_id,
-                call_id,
-                call.command,
-                "the robot may already act on it" if routed else "never routed",
-            )
-            if turn is not None:
-                turn.tool_calls_open.discard(call_id)
-        for call_id in event.call_ids:
-            self._results.withdraw(call_id)  # its result is never sent
-        self._send_tool_results()
-        if turn is not None and had_open and not turn.tool_calls_open:
-            # the provider cut its own turn (the user spoke): nothing more will answer this one
-            await self._finish_turn(turn, "cancelled")
-
-    def _on_verdict(self, verdict: CommandStatus) -> None:
-        answered = self._tools.take(verdict)
-        if answered is None:
-            return  # one of several, or a verdict for what another agent (or a person) sent
-        call, verdicts = answered
-        self._deliver_tool_result(call.call_id, verdicts_json(verdicts))
-
-    async def _tool_verdicts_late(self) -> None:
-        for call in self._tools.expired(self._clock.now()):
-            self.counters.tool_timeouts += 1
-            log.warning(
-                "agent %s: no verdict for %r within %g s",
-                self.config.agent_id,
-                call.command,
-                self.config.tool_verdict_timeout_s,
-            )
-            self._deliver_tool_result(
-                call.call_id, result_json(False, call.command, "no answer from the robot")
-            )
-
-    def _deliver_tool_result(self, call_id: str, output: str) -> None:
-        self._results.answer(call_id, output)
-        turn = self._turn_out
-        if turn is not None:
-            turn.tool_calls_open.discard(call_id)
-        self._last_activity = self._awaited_at = self._clock.now()  # the reply deadline restarts
-        self._send_tool_results()
-
-    def _send_tool_results(self) -> None:
-        """Each response's results once it is done and all are in: one request for a reply. The
-        results of a response whose turn is over (it started a robot action) make a turn of their
-        own, after the reply in progress."""
-        for serial, turn_number, results in self._results.take_ready():
-            out = self._turn_out
-            if out is not None and out.number == turn_number:
-                if self._session is not None and self._session.serial == serial:
-                    self._session.send(SendToolResults(results))
-            else:
-                self._queue_result_turn(serial, results)
-
     # --- robot tools (docs/tools.md) ---------------------------------------------------------
-
-    def _tool_specs(self) -> tuple[ToolSpec, ...]:
-        if self.config.role is not AgentRole.TOOLS:
-            return ()
-        return (ROBOT_COMMAND_TOOL, *(robot_tool_spec(tool) for tool in self._catalog.tools))
 
     async def _on_robot_tool_input(self, item: CallReplied | CallFeedback | ToolCatalog | SendFailed) -> None:
         if isinstance(item, ToolCatalog):
-            self._on_catalog(item)
+            if self._tool_calls.take_catalog(item) and self._session is not None:
+                # a session is told its tools when it opens
+                self._end.recycle("the robot's tools changed", self._clock.now())
         else:
             self._robot.on_reply(item)
 
-    def _on_catalog(self, item: ToolCatalog) -> None:
-        try:
-            catalog = Catalog.from_json(item.text)
-        except CatalogError as error:
-            self.counters.inputs_invalid += 1
-            log.warning("agent %s: the robot's tool list was refused: %s", self.config.agent_id, error)
-            return
-        if catalog == self._catalog:
-            return
-        self._catalog = catalog
-        names = ", ".join(tool.name for tool in catalog.tools) or "none"
-        log.info("agent %s: the robot's tools: %s", self.config.agent_id, names)
-        if self._session is not None and self.config.role is AgentRole.TOOLS:
-            self._end.recycle("the robot's tools changed", self._clock.now())  # told its tools when it opens
-
-    def _start_robot_call(self, session: Session, tool: RobotTool, call: ToolCall) -> None:
-        self._robot.start(session.serial, tool, call, self._attention, self.context.last_user_text())
+    def _start_robot_call(self, serial: int, tool: RobotTool, call: ToolCall) -> None:
+        self._robot.start(serial, tool, call, self._attention, self.context.last_user_text())
 
     async def _robot_calls_due(self) -> None:
         self._robot.due()
 
-    def _new_request_id(self) -> str:
-        """A command or robot tool request: its id names this agent, this run and this count."""
-        self._requests += 1
-        return f"{self.config.agent_id}-{self._run}-{self._requests}"
+    async def _tool_verdicts_late(self) -> None:
+        self._tool_calls.verdicts_late()
+
+    def _tool_answered(self) -> None:
+        self._last_activity = self._awaited_at = self._clock.now()  # the reply deadline restarts
 
     def _queue_result_turn(self, serial: int, results: tuple[ToolResult, ...], note: str = "") -> None:
         """A turn of its own for results whose turn is over: sent as they are to the session that
@@ -1306,8 +1117,7 @@ class AgentRuntime:
 
     async def _on_response_done(self, session: Session, turn: Turn | None, done: ResponseDone) -> None:
         self._add_usage(session, turn, done.usage)
-        self._results.response_done(done.response_id)
-        self._send_tool_results()
+        self._tool_calls.response_done(done.response_id)
         reply = self._reply
         if reply is not None and reply.response_id == done.response_id:
             reply.generation_done = True
@@ -1320,7 +1130,7 @@ class AgentRuntime:
         elif self._robot.started_action(done.response_id):
             # It started a robot action: its results (all of them, together) come when the action
             # ends, in a turn of their own; the conversation goes on meanwhile.
-            turn.tool_calls_open.difference_update(self._results.calls_of(done.response_id))
+            turn.tool_calls_open.difference_update(self._tool_calls.calls_of(done.response_id))
             if not turn.tool_calls_open:
                 await self._finish_turn(turn, "acting")
         elif turn.tool_calls_open or done.response_id in turn.tool_responses:
@@ -1367,7 +1177,7 @@ class AgentRuntime:
         setup = SessionSetup(
             self._instructions,
             self.context.history(now),
-            self._tool_specs(),
+            self._tool_calls.specs(),
             audio_out=self.config.speaks,
             conversation_id=self.context.conversation_id,
         )
@@ -1398,38 +1208,8 @@ class AgentRuntime:
             return
         self._session = None
         self._end.closed()
-        self._results.clear()  # results only its own responses could take
-        billed = await session.close()
-        if session.opened_at is None:  # refused or never connected: the vendor bills nothing
-            billed = 0.0
-            log.info(
-                "agent %s: session %d ended before it opened (%s)",
-                self.config.agent_id,
-                session.serial,
-                reason,
-            )
-        record = SessionMetrics(
-            self.config.agent_id,
-            self.context.conversation_id,
-            session.serial,
-            round(billed, 3),
-            session.turns,
-            reason,
-            session.usage,
-            session.provider.name,
-        )
-        log.log(
-            logging.INFO if session.opened_at is not None else logging.DEBUG,
-            "agent %s: session %d closed (%s): billed %.1f s, %d turns, tokens in %d out %d",
-            self.config.agent_id,
-            session.serial,
-            reason,
-            billed,
-            session.turns,
-            session.usage.input_tokens,
-            session.usage.output_tokens,
-        )
-        self._publish("metrics", partial(self._port.publish_metrics, record))
+        self._tool_calls.forget_results()  # results only its own responses could take
+        self._reports.session_closed(session, reason, await session.close())
 
     async def _close_idle_session(self) -> None:
         now = self._clock.now()
@@ -1460,11 +1240,7 @@ class AgentRuntime:
         turn = self._turn_out
         if turn is not None and (turn.reply_started or not turn.replayable):
             await self._fail_turn(turn, f"the provider session was lost ({reason})")
-        if self._tools:
-            for call in self._tools.expired(float("inf")):
-                log.info(
-                    "agent %s: tool call %s dropped with its session", self.config.agent_id, call.call_id
-                )
+        self._tool_calls.drop_waiting()
         turn = self._turn_out
         if turn is not None:  # never answered: it waits for the new session with the others
             self._turn_out = None
@@ -1476,7 +1252,8 @@ class AgentRuntime:
         if self._attempts >= self.config.connect_attempts or any(not t.replayable for t in pending):
             for lost in pending:
                 self.counters.utterances_undeliverable += 1
-                self._publish_turn(lost, "undelivered", f"{reason} ({self._attempts} attempt(s))")
+                why = f"{reason} ({self._attempts} attempt(s))"
+                self._reports.turn(lost, "undelivered", why, self._serial, self._session, self._reply)
             if self._turn_in is not None and self._turn_in.utterance_id is not None:
                 self._closed_utterances.append(self._turn_in.utterance_id)  # its later chunks are stray
             self._turn_out = self._turn_in = None
@@ -1532,8 +1309,7 @@ class AgentRuntime:
             turn.deferred = True
         if self._turn_in is not None and not self._turn_in.held:
             self._turn_in.deferred = True
-        for call in self._tools.expired(float("inf")):  # its calls were the old session's
-            log.info("agent %s: tool call %s dropped with its session", self.config.agent_id, call.call_id)
+        self._tool_calls.drop_waiting()  # its calls were the old session's
         await self._close_session(reason)
 
     async def _conversation_expired(self) -> None:
