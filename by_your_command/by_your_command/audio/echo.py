@@ -189,6 +189,7 @@ class EchoStats:
     aec_frames_unreferenced: int = 0  # released after the full wait, their reference still missing
     guard_frames_muted: int = 0  # aec frames taken down whole as residual echo (guard / suppressor)
     double_talk_frames: int = 0  # aec linear: frames the filter did not adapt on (someone talked)
+    path_changes: int = 0  # aec linear: echo path changes relearned (head turned, mic stamps shifted)
 
 
 class ReferenceTimeline:
@@ -561,6 +562,7 @@ class EchoController:
             self.stats.aec_frames += 1
         if self._linear is not None:
             self.stats.double_talk_frames = self._linear.canceller.stats.double_talk_blocks
+            self.stats.path_changes = self._linear.canceller.stats.path_changes
             if self._linear.suppressor is not None:
                 self.stats.guard_frames_muted = self._linear.suppressor.frames_muted
         self._pending = self._pending[ready:].copy()

@@ -106,7 +106,7 @@ class EchoSuppressorNode(Node):
                 f"rejected={stats.blocks_rejected} reference_rejected={stats.reference_rejected} "
                 f"aec_frames={stats.aec_frames} unreferenced={stats.aec_frames_unreferenced} "
                 f"guard_muted={stats.guard_frames_muted} double_talk={stats.double_talk_frames} "
-                f"mic_resyncs={stats.mic_resyncs} "
+                f"path_changes={stats.path_changes} mic_resyncs={stats.mic_resyncs} "
                 f"reference_restarts={stats.reference_restarts} "
                 f"late_reference_samples={stats.reference_samples_late}"
             )

@@ -332,6 +332,33 @@ def gemini_agent_config(
     return shipped_agent_config(tmp_path, shipped, endpoint, **settings)
 
 
+# Agents started (agent_process, installed_gemini_agent) and not yet seen subscribed at the bridge:
+# wait_agents_ready fails at once, with its output, when one of them has exited (else it waited its
+# whole timeout for a client that would never come). Agents a test kills later are not in it.
+_STARTING: list[tuple[subprocess.Popen[str], Output]] = []
+
+
+@contextmanager
+def _starting(process: subprocess.Popen[str], output: Output) -> Iterator[None]:
+    entry = (process, output)
+    _STARTING.append(entry)
+    try:
+        yield
+    finally:
+        if entry in _STARTING:
+            _STARTING.remove(entry)
+
+
+def _check_starting_agents() -> None:
+    for process, output in list(_STARTING):
+        if process.poll() is not None:
+            output.finish()  # the lines it wrote before it exited
+            raise AssertionError(
+                f"agent {process.args!r} exited with {process.returncode} before it subscribed at "
+                f"the bridge:\n{output}"
+            )
+
+
 @contextmanager
 def agent_process(
     config: Path, bridge_port: int, key: str = FAKE_KEY, *options: str
@@ -340,8 +367,7 @@ def agent_process(
     # Every provider's key variable, so no real key from the caller's environment is ever used.
     keys = {name: key for name in ("OPENAI_API_KEY", "GOOGLE_API_KEY", "GEMINI_API_KEY")}
     env = {**keys, "BYC_BRIDGE_URL": f"ws://127.0.0.1:{bridge_port}"}
-    with running_process(command, env=env) as process:
-        output = Output(process)
+    with running_process(command, env=env) as process, _starting(process, output := Output(process)):
         try:
             yield process, output
         finally:  # pytest shows captured stdout only when the test failed: the agent's own story
@@ -378,8 +404,7 @@ def installed_gemini_agent(
         "--pause-timeout", "60", "--ros-args", "-r", f"__node:={name}",
     ]  # fmt: skip
     env = {key_env: FAKE_KEY, "BYC_BRIDGE_URL": f"ws://127.0.0.1:{bridge_port}"}
-    with running_process(command, env=env) as process:
-        output = Output(process)
+    with running_process(command, env=env) as process, _starting(process, output := Output(process)):
         try:
             yield process, output
         finally:
@@ -539,9 +564,11 @@ class GraphProbe:
 
     def wait_agents_ready(self, namespace: str, requests: list[int], timeout: float = 40.0) -> None:
         """Until the bridge has one client per agent and each has sent all its setup requests
-        (subscriptions made: a prompt published now reaches the agent)."""
+        (subscriptions made: a prompt published now reaches the agent). Fails at once when an agent
+        started since the last call has exited."""
 
         def ready() -> bool:
+            _check_starting_agents()
             values = self.bridge_values(namespace)
             if values is None or values.get("clients") != str(len(requests)):
                 return False
@@ -549,6 +576,7 @@ class GraphProbe:
             return all(have >= need for have, need in zip(seen, sorted(requests), strict=True))
 
         wait_for(ready, timeout=timeout, what=f"{len(requests)} agent(s) subscribed at the bridge")
+        _STARTING.clear()  # all subscribed: what happens to them now is the test's business
 
         def matched() -> bool:
             values = self.bridge_values(namespace) or {}

@@ -4,13 +4,14 @@ spoken test phrases (espeak-ng through the package's speaker)."""
 
 from __future__ import annotations
 
+import subprocess
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 import numpy as np
-from agent_graph import VAD_RATE
+from agent_graph import VAD_RATE, Output
 from builtin_interfaces.msg import Time
 from byc_testing import python_module, running_process
 
@@ -72,17 +73,25 @@ class Microphone:
 
 
 @contextmanager
-def vad_process(namespace: str, stop_spotter: bool = False, echo_gate: bool = False) -> Iterator[object]:
-    """The VAD with the shipped defaults (pre-roll 480 ms). Its stop spotter is off unless asked:
-    it leans to stopping, and now and then takes a one-word cough ("ha", heard "car") for a stop,
-    which is its own figure (bench_safety_stop.py: false stops), not the barge-in judge's."""
+def vad_process(
+    namespace: str, stop_spotter: bool = False, echo_gate: bool = False
+) -> Iterator[tuple[subprocess.Popen[str], Output]]:
+    """The VAD with the shipped defaults (pre-roll 480 ms), and its output lines, read as they come
+    (an unread pipe blocks the node once full) and printed at the end (pytest shows them only when
+    the test failed). Its stop spotter is off unless asked: it leans to stopping, and now and then
+    takes a one-word cough ("ha", heard "car") for a stop, which is its own figure
+    (bench_safety_stop.py: false stops), not the barge-in judge's."""
     command = python_module(
         "by_your_command.nodes.silero_vad_node",
         "--ros-args", "-r", f"__ns:={namespace}", "-p", "input_topic:=audio",
         "-p", f"echo_gate:={str(echo_gate).lower()}", "-p", f"stop_spotter:={str(stop_spotter).lower()}",
     )  # fmt: skip
     with running_process(command) as process:
-        yield process
+        output = Output(process)
+        try:
+            yield process, output
+        finally:
+            print("--- silero_vad_node:", *list(output.lines), sep="\n")
 
 
 def spoken(text: str) -> np.ndarray:

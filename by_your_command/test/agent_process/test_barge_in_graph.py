@@ -43,7 +43,7 @@ def test_a_cough_resumes_the_reply_and_a_later_question_truncates_at_all_that_wa
         openai = stack.enter_context(emulator(script))
         probe = stack.enter_context(graph_probe(ros_namespace))
         player = stack.enter_context(player_process(ros_namespace, tmp_path / "played.wav"))
-        vad = stack.enter_context(vad_process(ros_namespace))
+        vad, _ = stack.enter_context(vad_process(ros_namespace))
         probe.wait_nodes(alive(player, vad), player=True)
         port, _ = stack.enter_context(bridge_process(ros_namespace))
         # Judged on the speech's length alone here, so that counting the VAD's pre-roll would

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 from agent_graph import (
-    Output,
     agent_config,
     agent_process,
     alive,
@@ -40,9 +39,7 @@ def test_a_spoken_stop_is_routed_once_and_the_model_never_answers_it(
     with ExitStack() as stack:
         openai = stack.enter_context(emulator(script))
         probe = stack.enter_context(graph_probe(ros_namespace))
-        vad = stack.enter_context(vad_process(ros_namespace, stop_spotter=True, echo_gate=True))
-        vad_out = Output(vad)  # read (an unread pipe would also block the node once full)
-        stack.callback(lambda: print("--- silero_vad_node:", *vad_out.lines, sep="\n"))
+        vad, vad_out = stack.enter_context(vad_process(ros_namespace, stop_spotter=True, echo_gate=True))
         port, bridge_out = stack.enter_context(bridge_process(ros_namespace))
         stack.callback(lambda: print("--- ros_ai_bridge:", *bridge_out.lines, sep="\n"))
         config, settings = agent_config(tmp_path, openai.url)
