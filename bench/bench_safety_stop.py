@@ -83,6 +83,8 @@ REPLY_TEMPLATES = [
     "Halting all motion.",
     "I can stop, halt or freeze on command.",
     "The robot came to a halt near the table.",
+    "Don't worry, I won't bump into it.",  # lone words that stand for a stop (HEARD_FOR_A_STOP)
+    "No. I won't. Don't.",
 ]
 OVER_REPLY = "Sure. I can see a red cup on the table next to a blue book and a small green plant."
 ROOM = Room()
