@@ -46,6 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _agent_bench import Process, node_command, percentile, summary, wait_until  # noqa: E402
 
+from by_your_command.agents import model_tool_calls  # noqa: E402
 from by_your_command.agents.bridge_port import BridgePort  # noqa: E402
 from by_your_command.agents.config import AgentConfig, parse_agent_config  # noqa: E402
 from by_your_command.agents.events import ProviderEvent, ResponseDone, ResponseStatus, ToolCall  # noqa: E402
@@ -294,8 +295,11 @@ class BenchProvider:
             yield event
 
 
+TOOLS_LOGGER = model_tool_calls.__name__  # where the agent logs the robot's tools it was given
+
+
 class _ToolsSeen(logging.Handler):
-    """Notices the runtime's log line that it has the robot's tools (the catalog from the bridge)."""
+    """Notices the agent's log line that it has the robot's tools (the catalog from the bridge)."""
 
     def __init__(self) -> None:
         super().__init__(logging.INFO)
@@ -322,9 +326,9 @@ class Agent:
             }
         )
         self.tools_seen = _ToolsSeen()
-        runtime_log = logging.getLogger("by_your_command.agents.runtime")
-        runtime_log.setLevel(logging.INFO)  # INFO is not printed: the root logger has no handler
-        runtime_log.addHandler(self.tools_seen)
+        tools_log = logging.getLogger(TOOLS_LOGGER)
+        tools_log.setLevel(logging.INFO)  # INFO is not printed: the root logger has no handler
+        tools_log.addHandler(self.tools_seen)
         self.loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self._thread.start()
@@ -364,7 +368,7 @@ class Agent:
         finally:
             self.loop.call_soon_threadsafe(self.loop.stop)
             self._thread.join(timeout=5)
-            logging.getLogger("by_your_command.agents.runtime").removeHandler(self.tools_seen)
+            logging.getLogger(TOOLS_LOGGER).removeHandler(self.tools_seen)
 
 
 # --- the run -------------------------------------------------------------------------------------
