@@ -342,7 +342,10 @@ class BenchNode:
             return False
         received = [int(v) for k, v in values.items() if k.endswith(".received")]
         matched = all(p.get_subscription_count() > 0 for p in (self.voice, self.activity, self.text))
-        return bool(received) and received[0] >= requests and matched
+        # The bridge's side of its match with the player: a reply published before it is lost to
+        # DDS discovery (seen on a loaded machine: the first turn timed out, 1 run in 3).
+        played = int(values.get(f"listeners.{self.topic('response_voice')}", "0")) >= 1
+        return bool(received) and received[0] >= requests and matched and played
 
     def statuses_of(self, stream_id: str) -> list[Stamped]:
         return [s for s in list(self.statuses) if s.msg.stream_id == stream_id]
