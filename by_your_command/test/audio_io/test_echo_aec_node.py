@@ -5,29 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from audio_io.aec_node import BLOCK, NS_PER_S, RATE, T0, aec_node, samples_ns, stamp_ns, to_stamp
 from audio_io.synthetic_room import Room, energy_db, recorded_speech
-from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk
 from byc_testing import python_module, running_process, wait_for
 from ros_probe import probe_node
 from std_msgs.msg import Bool
 
 from by_your_command.nodes._audio_msgs import make_audio_chunk, pcm_of
-from by_your_command.nodes._qos import LATCHED, STREAM
-
-RATE = 16000
-BLOCK = 512
-NS_PER_S = 1_000_000_000
-T0 = 1_700_000_000 * NS_PER_S
-
-
-def _ns(stamp: Time) -> int:
-    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
-
-
-def _stamp(ns: int) -> Time:
-    return Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S)
-
+from by_your_command.nodes._qos import STREAM
 
 # AEC3 alone (its guard mutes whole frames: that is not cancelling), and the default linear
 # engine with its residual suppressor; the least echo reduction each must reach in the graph.
@@ -45,59 +31,20 @@ def test_aec_node_cancels_the_played_audio_from_the_mic(ros_namespace: str, engi
     far = recorded_speech(6, RATE)
     mic = Room(delay_ms=100).echo(far, RATE)
     parameters, least_reduction_db = ENGINES[engine]
-    command = python_module(
-        "by_your_command.nodes.echo_suppressor",
-        "--ros-args", "-r", f"__ns:={ros_namespace}", "-p", "mode:=aec", *parameters,
-    )  # fmt: skip
-    with probe_node(ros_namespace) as probe, running_process(command) as node:
-        audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
-        played = probe.node.create_publisher(AudioChunk, "audio_played", STREAM)
-        speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
-        out = probe.listen(AudioChunk, "audio_filtered", STREAM)
-        wait_for(
-            lambda: (
-                audio.get_subscription_count() > 0
-                and played.get_subscription_count() > 0
-                and speaking.get_subscription_count() > 0
-                and probe.node.count_publishers("audio_filtered") > 0
-            ),
-            timeout=20,
-            what="echo_suppressor (aec) and us to discover each other",
-        )
-
-        def covered_until(time_ns: int) -> bool:
-            assert node.poll() is None, node.stdout.read() if node.stdout else "node died"
-            probe.spin(0.002)
-            return any(_ns(m.header.stamp) + len(m.data) * NS_PER_S // RATE >= time_ns for m in out[-4:])
-
-        def publish_played(k: int) -> None:
-            start = T0 + k * NS_PER_S // RATE
-            played.publish(make_audio_chunk(far[k : k + BLOCK], RATE, 1, _stamp(start), "resp"))
-
-        # Warm up until the node demonstrably hears us (the first best-effort messages after
-        # discovery may be lost): silence stamped well before the test audio.
-        warm_up = iter(range(10_000))
-
-        def heard() -> bool:
-            n = next(warm_up)
-            stamp = _stamp(T0 - 10 * NS_PER_S + n * BLOCK * NS_PER_S // RATE)
-            audio.publish(make_audio_chunk(np.zeros(BLOCK, dtype=np.int16), RATE, 1, stamp))
-            probe.spin(0.01)
-            return bool(out)
-
-        wait_for(heard, timeout=10, what="the node to hear us")
-        out.clear()
-        speaking.publish(Bool(data=True))
+    with aec_node(ros_namespace, *parameters) as node:
+        out = node.out
+        node.wait_heard()
+        node.speaking.publish(Bool(data=True))
         # Worst case ordering: each reference block arrives after the mic block it belongs to
         # (in a room the player announces a block before its echo is even captured). Lockstep
         # keeps every queue shallow: we wait until the output reaches two blocks back, which
         # also holds if a best-effort block is lost (the node resynchronises on the next one).
         for k in range(0, len(mic) // BLOCK * BLOCK, BLOCK):
-            start = T0 + k * NS_PER_S // RATE
-            audio.publish(make_audio_chunk(mic[k : k + BLOCK], RATE, 1, _stamp(start)))
-            publish_played(k)
+            start = T0 + samples_ns(k)
+            node.audio.publish(make_audio_chunk(mic[k : k + BLOCK], RATE, 1, to_stamp(start)))
+            node.played.publish(make_audio_chunk(far[k : k + BLOCK], RATE, 1, to_stamp(start), "resp"))
             wait_for(
-                lambda start=start: covered_until(start - 2 * BLOCK * NS_PER_S // RATE),
+                lambda start=start: node.covered_until(start - samples_ns(2 * BLOCK)),
                 timeout=5,
                 what=f"filtered audio up to block {k // BLOCK - 2}",
             )
@@ -107,7 +54,7 @@ def test_aec_node_cancels_the_played_audio_from_the_mic(ros_namespace: str, engi
     # Compare what arrived with the mic samples at the same stamps, after AEC3 has converged.
     mic_part, out_part = [], []
     for msg in out:
-        first = round((_ns(msg.header.stamp) - T0) * RATE / NS_PER_S)
+        first = round((stamp_ns(msg.header.stamp) - T0) * RATE / NS_PER_S)
         pcm = pcm_of(msg)
         if first >= 3 * RATE and first + len(pcm) <= len(mic):
             mic_part.append(mic[first : first + len(pcm)])
@@ -134,7 +81,7 @@ def test_aec_node_takes_a_48k_stereo_mic_and_refuses_absurd_rates(ros_namespace:
         def published() -> bool:
             assert node.poll() is None, node.stdout.read() if node.stdout else "node died"
             audio.publish(bad)
-            audio.publish(make_audio_chunk(stereo, 48000, 2, _stamp(T0)))
+            audio.publish(make_audio_chunk(stereo, 48000, 2, to_stamp(T0)))
             probe.spin(0.01)
             # Several rounds: best-effort chunks may be lost on a loaded machine, and every bad
             # chunk of the first round could be while a good one gets through.

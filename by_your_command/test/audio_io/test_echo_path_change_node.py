@@ -8,40 +8,22 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from audio_io.aec_node import BLOCK, NS_PER_S, RATE, T0, aec_node, samples_ns, stamp_ns, to_stamp
 from audio_io.synthetic_room import Room, energy_db, recorded_speech
-from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk
-from byc_testing import python_module, running_process, wait_for
-from ros_probe import probe_node
+from byc_testing import wait_for
 from std_msgs.msg import Bool
 
 from by_your_command.audio.pcm import Int16Array
 from by_your_command.nodes._audio_msgs import make_audio_chunk, pcm_of
-from by_your_command.nodes._qos import LATCHED, STREAM
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(240)]
 
-RATE = 16000
-BLOCK = 512
-NS_PER_S = 1_000_000_000
-T0 = 1_700_000_000 * NS_PER_S
 REPLY_S = 8
 PAUSE_BLOCKS = 31  # ~1 s of quiet mic between the replies
 MIC_JUMP_NS = 10_000_000  # 10 ms of mic never arrive: within the default stamp_tolerance_ms (20)
 CONVERGED = (3 * RATE, 7 * RATE)  # the part of a reply compared (samples from its start)
 LEAST_REDUCTION_DB = 25.0
-
-
-def _ns(stamp: Time) -> int:
-    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
-
-
-def _stamp(ns: int) -> Time:
-    return Time(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S)
-
-
-def _samples_ns(count: int) -> int:
-    return count * NS_PER_S // RATE
 
 
 def _reduction_db(mic: Int16Array, out: list[AudioChunk], start_ns: int) -> float:
@@ -54,7 +36,7 @@ def _reduction_db(mic: Int16Array, out: list[AudioChunk], start_ns: int) -> floa
     heard = np.zeros(hi - lo, dtype=np.int16)
     covered = np.zeros(hi - lo, dtype=bool)
     for msg in out:
-        at = round((_ns(msg.header.stamp) - start_ns) * RATE / NS_PER_S) - lo
+        at = round((stamp_ns(msg.header.stamp) - start_ns) * RATE / NS_PER_S) - lo
         pcm = pcm_of(msg)
         first, last = max(at, 0), min(at + len(pcm), hi - lo)
         if last > first:
@@ -75,78 +57,43 @@ def _reduction_db(mic: Int16Array, out: list[AudioChunk], start_ns: int) -> floa
 def test_a_mic_stamp_jump_between_replies_leaves_the_next_reply_cancelled(ros_namespace: str) -> None:
     far = recorded_speech(REPLY_S, RATE)
     mic = Room(delay_ms=30, reverb_ms=60, noise_dbfs=-90.0).echo(far, RATE)
-    command = python_module(
-        "by_your_command.nodes.echo_suppressor",
-        "--ros-args", "-r", f"__ns:={ros_namespace}", "-p", "mode:=aec",
-    )  # fmt: skip
-    with probe_node(ros_namespace) as probe, running_process(command) as node:
-        audio = probe.node.create_publisher(AudioChunk, "audio", STREAM)
-        played = probe.node.create_publisher(AudioChunk, "audio_played", STREAM)
-        speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
-        out = probe.listen(AudioChunk, "audio_filtered", STREAM)
-        wait_for(
-            lambda: (
-                audio.get_subscription_count() > 0
-                and played.get_subscription_count() > 0
-                and speaking.get_subscription_count() > 0
-                and probe.node.count_publishers("audio_filtered") > 0
-            ),
-            timeout=20,
-            what="echo_suppressor (aec) and us to discover each other",
-        )
-
-        def covered_until(time_ns: int) -> bool:
-            assert node.poll() is None, node.stdout.read() if node.stdout else "node died"
-            probe.spin(0.002)
-            return any(_ns(m.header.stamp) + _samples_ns(len(m.data)) >= time_ns for m in out[-4:])
+    with aec_node(ros_namespace) as node:
+        out = node.out
 
         def send(pcm: Int16Array, start_ns: int, reference: Int16Array | None) -> None:
             """One mic block, then what played meanwhile (the worst order), in lockstep: the
             output must reach two blocks back before the next (a lost best-effort block is
             resynchronised on the next one)."""
-            audio.publish(make_audio_chunk(pcm, RATE, 1, _stamp(start_ns)))
+            node.audio.publish(make_audio_chunk(pcm, RATE, 1, to_stamp(start_ns)))
             if reference is not None:
-                played.publish(make_audio_chunk(reference, RATE, 1, _stamp(start_ns), "resp"))
+                node.played.publish(make_audio_chunk(reference, RATE, 1, to_stamp(start_ns), "resp"))
             wait_for(
-                lambda: covered_until(start_ns - _samples_ns(2 * BLOCK)),
+                lambda: node.covered_until(start_ns - samples_ns(2 * BLOCK)),
                 timeout=5,
                 what=f"filtered audio up to {(start_ns - T0) / NS_PER_S:.3f} s",
             )
 
-        # Warm up until the node demonstrably hears us (the first best-effort messages after
-        # discovery may be lost): silence stamped well before the test audio.
-        warm_up = iter(range(10_000))
-
-        def heard() -> bool:
-            n = next(warm_up)
-            stamp = _stamp(T0 - 10 * NS_PER_S + _samples_ns(n * BLOCK))
-            audio.publish(make_audio_chunk(np.zeros(BLOCK, dtype=np.int16), RATE, 1, stamp))
-            probe.spin(0.01)
-            return bool(out)
-
-        wait_for(heard, timeout=10, what="the node to hear us")
-        out.clear()
-
+        node.wait_heard()
         reply_starts = []
         clock = T0
         quiet = np.zeros(BLOCK, dtype=np.int16)
         for reply in range(2):
             reply_starts.append(clock)
-            speaking.publish(Bool(data=True))
+            node.speaking.publish(Bool(data=True))
             for k in range(0, len(far) // BLOCK * BLOCK, BLOCK):
-                send(mic[k : k + BLOCK], clock + _samples_ns(k), far[k : k + BLOCK])
-            clock += _samples_ns(len(far) // BLOCK * BLOCK)
+                send(mic[k : k + BLOCK], clock + samples_ns(k), far[k : k + BLOCK])
+            clock += samples_ns(len(far) // BLOCK * BLOCK)
             if reply == 0:
-                speaking.publish(Bool(data=False))
+                node.speaking.publish(Bool(data=False))
                 for k in range(PAUSE_BLOCKS):
                     if k == PAUSE_BLOCKS - 4:  # the next reply is announced before it plays
-                        speaking.publish(Bool(data=True))
-                    send(quiet, clock + _samples_ns(k * BLOCK), None)
-                clock += _samples_ns(PAUSE_BLOCKS * BLOCK) + MIC_JUMP_NS
+                        node.speaking.publish(Bool(data=True))
+                    send(quiet, clock + samples_ns(k * BLOCK), None)
+                clock += samples_ns(PAUSE_BLOCKS * BLOCK) + MIC_JUMP_NS
         # Flush the last blocks out: quiet mic (the reply is over) until the output reaches them.
-        speaking.publish(Bool(data=False))
+        node.speaking.publish(Bool(data=False))
         for k in range(4):
-            send(quiet, clock + _samples_ns(k * BLOCK), None)
+            send(quiet, clock + samples_ns(k * BLOCK), None)
 
     first, second = (_reduction_db(mic, out, start) for start in reply_starts)
     print(f"echo reduction through the node: first reply {first:.1f} dB, after the jump {second:.1f} dB")
