@@ -14,8 +14,11 @@ rejected.
 from __future__ import annotations
 
 import logging
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from by_your_command.audio.pcm import Int16Array, resample, to_mono
 from by_your_command.safety.config import StopConfig
@@ -57,6 +60,35 @@ ECHO_TAIL_NS = NS_PER_S  # keep cancelling this long after the last reference bl
 # 96.2 % at 3 dB, no own-voice false stops either way; a gentler band floor (-10 dB) lost stops.
 ECHO_GUARD_MARGIN_DB = 3.0
 REFERENCE_MAX_UTTERANCE_MS = 5000  # the robot's sentences: its stop-like words need their times
+# A keyphrase hit on one word stands for a clipped stop, but not in an utterance the echo canceller
+# took this much out of: that is the robot's residual echo (en-gb "I heard you" decoded "what" with
+# a hit stopped the robot: 25-30 dB under the mic; users' stops over a reply came out 5-9 dB under
+# it, bench_safety_stop). A whole stop phrase stands whatever the canceller took.
+ECHO_REMOVED_DB = 15.0
+LEVELS_KEPT_NS = 4 * NS_PER_S  # mic and output levels remembered: longer than any stop utterance
+
+
+class _Levels:
+    """Mean squares of recent blocks by time: how loud a stretch of the mic (or output) was."""
+
+    def __init__(self) -> None:
+        self._blocks: deque[tuple[int, int, float]] = deque()  # (start ns, end ns, mean square)
+
+    def add(self, pcm: Int16Array, rate: int, start_ns: int) -> None:
+        if len(pcm) == 0:
+            return
+        end_ns = start_ns + len(pcm) * NS_PER_S // rate
+        self._blocks.append((start_ns, end_ns, float(np.mean(np.square(pcm.astype(np.float64))))))
+        while self._blocks and self._blocks[0][1] < end_ns - LEVELS_KEPT_NS:
+            self._blocks.popleft()
+
+    def energy(self, start_ns: int, end_ns: int) -> float:
+        """Mean square x overlapping ns over [start, end): 0.0 when nothing was recorded there."""
+        return sum(
+            square * (min(end, end_ns) - max(start, start_ns))
+            for start, end, square in self._blocks
+            if start < end_ns and end > start_ns
+        )
 
 
 @dataclass(frozen=True)
@@ -92,6 +124,8 @@ class StopSpotter:
         self._cancelled_ns = 0  # mic time of the next sample out of the echo controller
         self._last_stop_ns: int | None = None
         self._pending: list[Detection] = []  # heard while the robot spoke: its voice not known yet
+        self._mic_levels = _Levels()  # the raw mic while cancelling
+        self._output_levels = _Levels()  # the canceller's output
         self.heard = 0  # utterances decoded
         self.stops = 0
         self.own_voice = 0  # stops rejected as the robot's own voice
@@ -138,6 +172,10 @@ class StopSpotter:
             for event in self._reference.close():
                 self._reference_event(event)
         blocks = self._echo_cancelled(mono, sample_rate, start_ns)
+        if self._cancelling:
+            self._mic_levels.add(mono, sample_rate, start_ns)
+            for block, stamp in blocks:
+                self._output_levels.add(block, RATE, stamp)
         found: list[Detection] = []
         for block, stamp in blocks:
             for event in self._mic.push(block, stamp):
@@ -206,10 +244,20 @@ class StopSpotter:
                 return None
             short = voiced <= KWS_MAX_VOICED_NS
             if self.matcher.is_stop(heard.text) or (
-                keyword and short and self.matcher.may_be_stop(heard.text)
+                keyword
+                and short
+                and self.matcher.may_be_stop(heard.text)
+                and not self._mostly_echo(event.voice_start_ns, event.voice_end_ns)
             ):
                 return Detection(heard.text, event.voice_start_ns, event.voice_end_ns)
         return None
+
+    def _mostly_echo(self, start_ns: int, end_ns: int) -> bool:
+        """The echo canceller took ECHO_REMOVED_DB or more out of the mic over [start, end)."""
+        mic = self._mic_levels.energy(start_ns, end_ns)
+        return mic > 0.0 and self._output_levels.energy(start_ns, end_ns) < mic * 10 ** (
+            -ECHO_REMOVED_DB / 10
+        )
 
     def _accepted(self, detection: Detection) -> bool:
         if self._reference.active:

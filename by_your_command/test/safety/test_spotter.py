@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from audio_io.synthetic_room import Room, at_level, espeak, trim_silence
+from audio_io.synthetic_room import ROBOT_REPLY, Room, at_level, espeak, trim_silence
 
 from by_your_command.audio.pcm import Int16Array
 from by_your_command.safety.config import StopConfig
@@ -195,3 +195,33 @@ def test_the_spotter_cancels_the_robots_voice_on_a_raw_mic_of_its_own() -> None:
     assert VadConfig(input_topic="audio", stop_input_topic="audio", echo_gate=True).stop_cancels_echo
     default = VadConfig()
     assert default.stop_topic == default.input_topic and not default.stop_cancels_echo
+
+
+@pytest.mark.unit
+def test_the_spotter_tells_its_residual_echo_from_a_voice_over_it(spotter_config: StopConfig) -> None:
+    # Where its canceller took most of the mic away, what is left is the robot's residual echo: a
+    # keyphrase hit on one word there ("I heard" decoded "what") must not stop the robot. A user's
+    # word over the reply keeps most of its level, and the user's stop is heard.
+    played = at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", RATE), RATE), -18.0)
+    played = np.concatenate([np.zeros(RATE // 2, dtype=np.int16), played, np.zeros(RATE, dtype=np.int16)])
+    mic = at_level(Room().echo(played, RATE), -22.0).astype(np.float64)
+    user_at = int(3.5 * RATE)
+    user = at_level(trim_silence(espeak("stop", "en-us", RATE), RATE), -26.0)
+    mic[user_at : user_at + len(user)] += user
+    mic_pcm = np.clip(mic, -32768, 32767).astype(np.int16)
+    spotter = StopSpotter(spotter_config, cancel_echo=True)
+    at = lambda sample: T0 + sample * NS // RATE  # noqa: E731
+    found, echo_alone, voice_over = [], [], []
+    for k in range(0, len(mic_pcm) - BLOCK + 1, BLOCK):
+        spotter.reference(played[k : k + BLOCK], RATE, 1, at(k))
+        found += spotter.mic(mic_pcm[k : k + BLOCK], RATE, 1, at(k))
+        # asked as the spotter asks: right after the stretch
+        if not echo_alone and k >= 3 * RATE:
+            echo_alone.append(spotter._mostly_echo(at(2 * RATE), at(3 * RATE)))
+        if not voice_over and k >= user_at + len(user) + BLOCK:
+            voice_over.append(spotter._mostly_echo(at(user_at), at(user_at + len(user))))
+    assert [d.text for d in found] == ["stop"]
+    assert echo_alone == [True]  # the robot alone, cancelled
+    assert voice_over == [False]
+    # Not cancelling (the robot silent): nothing was taken away.
+    assert not StopSpotter(spotter_config, cancel_echo=True)._mostly_echo(at(0), at(RATE))
