@@ -21,8 +21,9 @@ from by_your_command.agents.app_config import AppConfig
 from by_your_command.agents.app_providers import BuiltProvider, build_provider
 from by_your_command.agents.bridge_port import BridgePort
 from by_your_command.agents.config import AgentConfig, AgentConfigError, instructions_for
+from by_your_command.agents.interruptions import Transcriber
 from by_your_command.agents.overlap_words import LocalTranscriber
-from by_your_command.agents.runtime import AgentFatal, AgentRuntime, Transcriber
+from by_your_command.agents.runtime import AgentFatal, AgentRuntime
 from by_your_command.bridge.client import BridgeClient, ClientOptions
 from by_your_command.config_files.locate import ConfigFileNotFound
 from by_your_command.config_files.located_yaml import ConfigError

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
-from by_your_command.agents.barge_in import BargeInWatch, PendingBargeIn, Rules, Verdict
 from by_your_command.agents.clock import Clock, LoopClock
 from by_your_command.agents.config import AgentConfig, ContextSource
 from by_your_command.agents.context import ContextStore
@@ -56,11 +55,11 @@ from by_your_command.agents.inputs import (
     UtteranceChunk,
     VoiceActivity,
 )
+from by_your_command.agents.interruptions import Heard, Interruptions, Transcriber
 from by_your_command.agents.metrics import Counters
 from by_your_command.agents.model_tool_calls import ModelToolCalls
 from by_your_command.agents.outbox import Outbox
-from by_your_command.agents.overlap_words import interrupting_words
-from by_your_command.agents.port import PlayerAction, PortClosed, RobotPort, VoiceChunk
+from by_your_command.agents.port import PortClosed, RobotPort, VoiceChunk
 from by_your_command.agents.provider import ProviderFactory, Role, SessionSetup, ToolResult
 from by_your_command.agents.reply_audio import ReplyAudio
 from by_your_command.agents.reply_words import ReplyWords
@@ -74,7 +73,6 @@ from by_your_command.agents.rotation import ROTATION, SessionEnd
 from by_your_command.agents.session import (
     AddContext,
     EndOfTurn,
-    Interrupt,
     MuteInput,
     SendAudio,
     SendImage,
@@ -100,7 +98,6 @@ MAX_TEXT_CHARS = 4000  # a typed turn longer than this is cut (and counted)
 MAX_FRAME_BYTES = 4 * 1024 * 1024
 INPUT_BACKLOG = 256  # robot inputs queued before the pump stops reading (back-pressure to the bridge)
 RECENT_UTTERANCES = 32  # closed utterance ids remembered, to tell late chunks from new utterances
-RECENT_CUTS = 64  # cut responses remembered (their late audio and words are dropped); bounded
 # What the model reads in its history after the robot heard "stop" itself (the safety stop).
 SAFETY_STOP_NOTE = (
     '"{phrase}" (the robot heard this itself and stopped at once: every motion command was '
@@ -119,22 +116,10 @@ class _Stop:
     pass
 
 
-@dataclass(frozen=True)
-class _Heard:
-    """What the local transcriber heard of a barge-in's audio (None: it failed)."""
-
-    barge: PendingBargeIn
-    text: str | None
-    covered_bytes: int
-
-
 _STOP = _Stop()
-_Item = RobotInput | SessionMessage | _Heard | SendFailed | _Stop
+_Item = RobotInput | SessionMessage | Heard | SendFailed | _Stop
 # Items the scheduler made itself (or its sessions did): they hold no place in the input backlog.
-_OWN_ITEMS = (SessionOpened, SessionEvent, SessionFailed, _Heard, SendFailed)
-
-# pcm (int16 LE) and its rate -> the words heard (the app runs the recogniser on a worker thread)
-Transcriber = Callable[[bytes, int], Awaitable[str]]
+_OWN_ITEMS = (SessionOpened, SessionEvent, SessionFailed, Heard, SendFailed)
 
 
 @dataclass(frozen=True)
@@ -155,13 +140,6 @@ class AgentRuntime:
         transcriber: Transcriber | None = None,
     ) -> None:
         self.config = config
-        # Words of the speech over a reply (barge-in proof); None: its length alone decides.
-        self._transcriber = transcriber if config.min_barge_in_words > 0 else None
-        self._barge_rules = Rules(
-            config.min_barge_in_ms,
-            config.min_barge_in_words if self._transcriber is not None else 0,
-            config.barge_in_window_s,
-        )
         self._instructions = instructions
         self._port = port
         self._factory = provider_factory
@@ -184,8 +162,6 @@ class AgentRuntime:
         self._waiting: deque[Turn] = deque()  # ended turns committed after the current reply
         self._closed_utterances: deque[int] = deque(maxlen=RECENT_UTTERANCES)
         self._reply: ReplyAudio | None = None  # the latest spoken reply (may still be playing)
-        self._cut: deque[str] = deque(maxlen=RECENT_CUTS)  # responses cut by a confirmed barge-in
-        self._watch = BargeInWatch(self._barge_rules)  # the barge-in being judged, if any
         # Stream (and request) ids name this run too: a restarted agent's first reply must not
         # continue (or be dropped as) the stream its dead predecessor left in the player under the same id.
         self._run = secrets.token_hex(3)
@@ -231,11 +207,21 @@ class AgentRuntime:
             port,
             publish=self._publish,
             now=self._clock.now,
-            was_cut=lambda response_id: response_id in self._cut,
+            was_cut=lambda response_id: self._interruptions.was_cut(response_id),
             old_conversation=self._session_is_old_conversation,
         )
         self._utterance_ended_at = float("-inf")  # frames kept from before this are stale
         self._outbox = Outbox(config.agent_id, config.publish_timeout_s, self._count_publish_failure)
+        self._interruptions = Interruptions(
+            config,
+            self.counters,
+            port,
+            transcriber,
+            publish=self._publish,
+            wall=self._clock.wall,
+            discard_stream=self._outbox.discard_stream,
+            session=lambda: self._session,
+        )
         self._reports = AgentReports(
             config.agent_id,
             port,
@@ -382,7 +368,7 @@ class AgentRuntime:
         out = self._turn_out
         if out is not None and not out.tool_calls_open:
             found.append(_Deadline(self._awaited_at + c.reply_timeout_s, "reply", self._reply_timed_out))
-        barge_deadline = self._watch.deadline()
+        barge_deadline = self._interruptions.deadline()
         if barge_deadline is not None:
             found.append(_Deadline(barge_deadline, "barge-in", self._judge_barge))
         tool_deadline = self._tool_calls.next_deadline()
@@ -422,7 +408,7 @@ class AgentRuntime:
             self._turn_in is None
             and self._turn_out is None
             and not self._waiting
-            and self._watch.pending is None
+            and not self._interruptions.pending
             and self._tool_calls.waiting() == 0
             # a running action keeps its session: only that session can take the call's result
             and not (self.robot_calls and self.config.keep_session_while_acting)
@@ -431,12 +417,12 @@ class AgentRuntime:
 
     # --- dispatch ----------------------------------------------------------------------------
 
-    async def _handle(self, item: RobotInput | SessionMessage | _Heard | SendFailed) -> None:
+    async def _handle(self, item: RobotInput | SessionMessage | Heard | SendFailed) -> None:
         if isinstance(item, (SessionOpened, SessionEvent, SessionFailed)):
             await self._on_session_message(item)
         elif isinstance(item, (CallReplied, CallFeedback, ToolCatalog, SendFailed)):
             await self._on_robot_tool_input(item)
-        elif isinstance(item, _Heard):
+        elif isinstance(item, Heard):
             await self._on_heard(item)
         elif isinstance(item, SafetyStop):
             await self._on_safety_stop(item)
@@ -519,7 +505,7 @@ class AgentRuntime:
         turn.frame_since = self._utterance_ended_at
         turn.last_chunk_at = now
         turn.deferred = bool(self._waiting) and not self._duplex  # duplex: the model hears it now
-        self._watch.join(turn)  # the speech over a paused reply: held until judged
+        self._interruptions.join(turn)  # the speech over a paused reply: held until judged
         self._turn_in = turn
         await self._continue_utterance(turn, chunk)
 
@@ -555,7 +541,7 @@ class AgentRuntime:
             self._show(self._session, self._frames.give_to(turn.number, self._clock.now(), since))
         if chunk.is_end:
             await self._end_utterance(turn)
-        elif self._watch.judges(turn):
+        elif self._interruptions.judges(turn):
             await self._judge_barge()
             self._hear_barge_in()
 
@@ -574,7 +560,7 @@ class AgentRuntime:
         self._utterance_ended_at = now
         if turn.utterance_id is not None:
             self._closed_utterances.append(turn.utterance_id)
-        if self._watch.judges(turn):
+        if self._interruptions.judges(turn):
             await self._judge_barge()
             self._hear_barge_in()  # the whole utterance, when its transcript is still wanted
             if turn.held:  # judged false, or still being judged: not sent (yet)
@@ -740,28 +726,8 @@ class AgentRuntime:
     async def _speech_onset(self) -> None:
         if self._attention is not Attention.AWAKE:
             return
-        now = self._clock.now()
-        reply = self._reply
-        if (
-            self.config.barge_in
-            and not self._duplex
-            and self._watch.pending is None
-            and reply is not None
-            and not reply.cut
-            and reply.is_playing(now)
-        ):
-            # Pause the player first: no provider round trip between the user's voice and silence.
-            # Its audio keeps flowing to the player, which holds it: a false barge-in resumes the
-            # same stream, so nothing is re-sent and played_ms stays that of the whole reply.
-            self._player(reply.stream_id, "barge_in", PlayerAction.PAUSE)
-            self.counters.barge_ins += 1
-            self._watch.start(reply, now)
-            log.info(
-                "agent %s: speech over %s: paused at ~%d ms",
-                self.config.agent_id,
-                reply.stream_id,
-                reply.heard_ms(now),
-            )
+        if not self._duplex:  # a full-duplex model hears the user and yields by itself
+            self._interruptions.speech_onset(self._reply, self._clock.now())
         await self._rotate_before_a_new_turn()
         self._ensure_session()  # the connect hides behind the utterance that follows
 
@@ -774,140 +740,32 @@ class AgentRuntime:
 
     def _hear_barge_in(self) -> None:
         """Transcribe the held speech (off the loop) when its words can still decide the barge-in."""
-        barge, turn = self._watch.pending, self._watch.turn
-        if barge is None or turn is None or self._transcriber is None or barge.transcribing:
-            return
-        if len(turn.audio) <= barge.transcribed_bytes or turn.voiced_ms < self.config.min_barge_in_ms:
-            return  # nothing new, or too little speech to be a barge-in whatever it says
-        assert turn.resampler is not None
-        pcm, rate = bytes(turn.audio), turn.resampler.to_rate
-        barge.transcribing = True
-        transcriber = self._transcriber
+        hearing = self._interruptions.hearing()
+        if hearing is not None:
+            self._background(self._hear(hearing), "barge-in transcription")
 
-        async def transcribe() -> None:
-            text: str | None
-            try:
-                text = await transcriber(pcm, rate)
-            except Exception as error:  # counted and logged here; the verdict then rests on length
-                self.counters.internal_errors += 1
-                log.error("agent %s: barge-in transcription failed: %r", self.config.agent_id, error)
-                text = None
-            self._queue.put_nowait(_Heard(barge, text, len(pcm)))
+    async def _hear(self, hearing: Callable[[], Awaitable[Heard]]) -> None:
+        self._queue.put_nowait(await hearing())
 
-        self._background(transcribe(), "barge-in transcription")
-
-    async def _on_heard(self, heard: _Heard) -> None:
-        barge = heard.barge
-        barge.transcribing = False
-        if self._watch.pending is not barge:
+    async def _on_heard(self, heard: Heard) -> None:
+        if not self._interruptions.heard(heard):
             return  # judged meanwhile
-        barge.transcribed_bytes = heard.covered_bytes
-        if heard.text is None:
-            barge.words = None
-            barge.transcriber_failed = True
-        else:
-            words = interrupting_words(heard.text, self.config.backchannels)
-            barge.words = len(words)
-            log.info(
-                "agent %s: over the reply: %r (%d interrupting word(s))",
-                self.config.agent_id,
-                heard.text,
-                len(words),
-            )
-        turn = self._watch.turn
+        turn = self._interruptions.utterance
         await self._judge_barge()
         self._hear_barge_in()
-        if turn is not None and self._watch.pending is None and turn.ended and not turn.held:
+        if turn is not None and not self._interruptions.pending and turn.ended and not turn.held:
             self._utterance_complete(turn)  # confirmed after the utterance ended
 
     async def _judge_barge(self) -> None:
-        if self._watch.pending is None:
-            return
-        now = self._clock.now()
-        verdict, evidence = self._watch.judge(now)
-        if verdict is Verdict.WAIT:
-            return
-        barge, turn = self._watch.end()
-        assert barge is not None
-        reply = barge.reply
-        if barge.resumed and verdict is Verdict.CONFIRMED and not reply.is_playing(now):
-            verdict = Verdict.FALSE  # the reply ended meanwhile: nothing to cut, an utterance like any
-            if turn is not None:
-                self._release_held(turn)
-        if verdict is Verdict.CONFIRMED:
-            # Paused at the onset: cut where it paused; resumed since: cut where it plays now.
-            heard = self._cut_reply(reply, "barge_in", now if barge.resumed else barge.started_at)
-            log.info(
-                "agent %s: barge-in confirmed (%.0f ms of speech, %s word(s)); %s cut at %d ms",
-                self.config.agent_id,
-                evidence.speech_ms,
-                "?" if evidence.words is None else evidence.words,
-                barge.stream_id,
-                heard,
-            )
-            if turn is not None:
-                self._release_held(turn)
-        else:
-            if not barge.resumed:
-                self.counters.false_barge_ins += 1
-                self._player(reply.stream_id, "false_barge_in", PlayerAction.RESUME)
-                log.info(
-                    "agent %s: false barge-in (%.0f ms of speech, %s word(s)); %s resumed",
-                    self.config.agent_id,
-                    evidence.speech_ms,
-                    "?" if evidence.words is None else evidence.words,
-                    barge.stream_id,
-                )
-            still_talking = turn is not None and self._turn_in is turn
-            if still_talking and not reply.cut and reply.is_playing(now):
-                # The reply plays on, and what follows may still prove an interruption: the same
-                # utterance is judged again, a fresh window from now.
-                self._watch.start(reply, now, turn, resumed=True)
-            elif still_talking and turn is not None:
-                self._release_held(turn)  # the reply is over: an utterance like any other
-            # an utterance that ended without proof stays held: never sent, never committed
+        reply = self._interruptions.judge(self._clock.now(), self._turn_in)
         answered = self._turn_out
-        if reply.generation_done and answered is not None and answered.number == reply.turn:
+        if (
+            reply is not None
+            and reply.generation_done
+            and answered is not None
+            and answered.number == reply.turn
+        ):
             await self._finish_turn(answered, "interrupted" if reply.cut else "completed")
-
-    def _release_held(self, turn: Turn) -> None:
-        """Speech held while a barge-in was judged is the user's: the model hears it now."""
-        if not turn.held:
-            return
-        turn.held = False
-        if self._session is not None and turn.audio and not turn.deferred:
-            self._session.send(SendAudio(bytes(turn.audio)))
-
-    def _cut_reply(self, reply: ReplyAudio, reason: str, stopped_at: float) -> int:
-        """Cut `reply` at the player and in the model's memory, at what was heard by `stopped_at`."""
-        reply.cut = True
-        self._cut.append(reply.response_id)
-        heard = reply.heard_ms(stopped_at)
-        self._outbox.discard_stream(reply.stream_id)
-        self._player(reply.stream_id, reason, PlayerAction.CUT)
-        if self._session is not None and self._session.serial == reply.session:
-            self._session.send(Interrupt(reply.response_id, reply.item_id, heard))
-        return heard
-
-    def _model_yielded(self, reply: ReplyAudio) -> None:
-        """A full-duplex model stopped talking because the user spoke: what the player still holds
-        of the reply is not said."""
-        now = self._clock.now()
-        heard = self._cut_reply(reply, "model_yielded", now)
-        self.counters.barge_ins += 1
-        log.info(
-            "agent %s: the model yielded to the user; %s cut at %d ms",
-            self.config.agent_id,
-            reply.stream_id,
-            heard,
-        )
-
-    def _player(self, stream_id: str, reason: str, action: PlayerAction) -> None:
-        stamp = self._clock.wall()
-        self._publish(
-            "interruption_signal",
-            partial(self._port.publish_interruption, stream_id, reason, stamp, action),
-        )
 
     async def _on_safety_stop(self, stop: SafetyStop) -> None:
         """The robot heard "stop" itself: the command is routed and the player cut already. Our
@@ -922,16 +780,13 @@ class AgentRuntime:
         )
         now = self._clock.now()
         reply = self._reply
-        _, held = self._watch.end()  # the stop settles a barge-in: the reply is cut
-        if held is not None:
-            held.held = False  # the speech is the user's
-        cut = reply is not None and not reply.cut and reply.stream_started_at is not None
-        heard = self._cut_reply(reply, "safety_stop", now) if cut and reply is not None else 0
+        heard = self._interruptions.safety_stop(reply, now)  # it settles a barge-in too
+        cut = heard is not None
         log.warning(
             "agent %s: safety stop heard (%r)%s",
             self.config.agent_id,
             stop.phrase,
-            f": {reply.stream_id} cut at {heard} ms" if cut and reply is not None else "",
+            f": {reply.stream_id} cut at {heard} ms" if heard is not None and reply is not None else "",
         )
         if self.config.context_source is ContextSource.OWN and not self._session_is_old_conversation():
             note = SAFETY_STOP_NOTE.format(phrase=stop.phrase)
@@ -1040,7 +895,7 @@ class AgentRuntime:
             if reply is not None and reply.response_id == event.response_id:
                 reply.generation_done = True
                 if self._duplex and not reply.cut:
-                    self._model_yielded(reply)
+                    self._interruptions.model_yielded(reply, self._clock.now())
                 else:
                     await self._end_stream(reply)
         elif isinstance(event, UsageReport):
@@ -1056,7 +911,7 @@ class AgentRuntime:
             await self._on_provider_error(event)
 
     async def _on_audio(self, turn: Turn | None, event: AssistantAudio) -> None:
-        if not self.config.speaks or event.response_id in self._cut or not event.pcm:
+        if not self.config.speaks or self._interruptions.was_cut(event.response_id) or not event.pcm:
             return
         if not MIN_RATE <= event.sample_rate <= MAX_RATE or len(event.pcm) % 2:
             self.counters.inputs_invalid += 1
@@ -1135,10 +990,10 @@ class AgentRuntime:
                 await self._finish_turn(turn, "acting")
         elif turn.tool_calls_open or done.response_id in turn.tool_responses:
             return  # the reply continues once the verdicts are in (a tool-calling response is never the last)
-        elif self._watch.pending is not None and self._watch.pending.reply is reply:
+        elif self._interruptions.judging(reply):
             return  # finished when the barge-in is judged
         else:
-            outcome = "interrupted" if done.response_id in self._cut else done.status.value
+            outcome = "interrupted" if self._interruptions.was_cut(done.response_id) else done.status.value
             await self._finish_turn(turn, outcome)
 
     async def _on_provider_error(self, error: ProviderError) -> None:

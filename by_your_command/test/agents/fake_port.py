@@ -14,9 +14,10 @@ from virtual_time import VirtualClock
 
 from by_your_command.agents.config import AgentConfig
 from by_your_command.agents.inputs import CommandStatus, PlaybackStatus, RobotInput, UtteranceChunk
+from by_your_command.agents.interruptions import Transcriber
 from by_your_command.agents.metrics import MetricsRecord, SessionMetrics, TurnMetrics
 from by_your_command.agents.port import DetectionReport, PlayerAction, PortUnavailable, VoiceChunk
-from by_your_command.agents.runtime import AgentRuntime, Transcriber
+from by_your_command.agents.runtime import AgentRuntime
 from by_your_command.commands.processor import CommandProcessor
 
 _CLOSE = object()

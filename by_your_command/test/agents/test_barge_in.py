@@ -15,8 +15,8 @@ from virtual_time import run_virtual
 
 from by_your_command.agents.config import AgentConfig, AgentRole, EchoMode
 from by_your_command.agents.inputs import PlaybackStatus, SafetyStop, VoiceActivity
+from by_your_command.agents.interruptions import RECENT_CUTS
 from by_your_command.agents.overlap_words import LocalTranscriber, interrupting_words
-from by_your_command.agents.runtime import RECENT_CUTS
 from by_your_command.local_speech.speaker import Speaker, SpeakerConfig
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(60)]
@@ -424,7 +424,7 @@ def test_the_cut_replies_remembered_are_bounded() -> None:
                 await speak(agent.port, n, seconds=1.0)  # real speech: each reply is cut
             await agent.stop()
         assert agent.runtime.counters.barge_ins > RECENT_CUTS and agent.runtime.counters.false_barge_ins == 0
-        assert len(agent.runtime._cut) == RECENT_CUTS  # the newest only
+        assert len(agent.runtime._interruptions.cut) == RECENT_CUTS  # the newest only
 
     run_virtual(scenario())
 
