@@ -185,6 +185,17 @@ class Process:
             except subprocess.TimeoutExpired:
                 os.killpg(self.popen.pid, signal.SIGKILL)
                 self.popen.wait()
+        self._keep_output()
+
+    def _keep_output(self) -> None:
+        """With BENCH_PROCESS_LOGS=DIR, the process's output goes to DIR (to see why a trial failed)."""
+        folder = os.environ.get("BENCH_PROCESS_LOGS")
+        if not folder:
+            return
+        args = [str(a) for a in self.popen.args]  # type: ignore[union-attr]
+        name = next((a.rsplit(".", 1)[-1] for a in args if a.startswith("by_your_command.")), "process")
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        Path(folder, f"{name}-{self.popen.pid}.log").write_text("\n".join(self.lines) + "\n")
 
 
 def node_command(module: str, namespace: str, *params: str) -> list[str]:

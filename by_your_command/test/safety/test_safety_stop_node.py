@@ -5,8 +5,11 @@ configuration stops the node at start."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
+from audio_io.synthetic_room import ROBOT_REPLY, at_level, espeak, trim_silence
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption, SafetyStop
 from byc_testing import running_process
@@ -34,7 +37,11 @@ class Room:
         self.played = probe.node.create_publisher(AudioChunk, "audio_played", STREAM)
         self.next_ns = probe.node.get_clock().now().nanoseconds
 
-    def play(self, user: Int16Array | None = None, robot: Int16Array | None = None) -> None:
+    def play(
+        self, user: Int16Array | None = None, robot: Int16Array | None = None, realtime: bool = False
+    ) -> None:
+        """`realtime`: one block per block's duration, as a microphone does (a long reply sent
+        faster than the spotter cancels and decodes it would overflow its bounded queue)."""
         length = max(len(user) if user is not None else 0, len(robot) if robot is not None else 0)
         mic = np.zeros(length + RATE, dtype=np.int32)
         if user is not None:
@@ -43,6 +50,7 @@ class Room:
         if robot is not None:
             mic[delay : delay + len(robot)] += robot // 2
         mic16 = np.clip(mic, -32768, 32767).astype(np.int16)
+        started = time.monotonic()
         for k in range(0, len(mic16) - BLOCK + 1, BLOCK):
             stamp = Time(sec=self.next_ns // NS, nanosec=self.next_ns % NS)
             if robot is not None and k < len(robot):
@@ -50,6 +58,8 @@ class Room:
             self.mic.publish(make_audio_chunk(mic16[k : k + BLOCK], RATE, 1, stamp))
             self.next_ns += BLOCK * NS // RATE
             self.probe.spin(0.002)
+            while realtime and time.monotonic() < started + (k + BLOCK) / RATE:
+                self.probe.spin(0.002)
 
 
 @pytest.mark.ros
@@ -152,6 +162,35 @@ def test_in_aec_mode_the_spotter_hears_the_raw_mic_beside_audio_filtered(ros_nam
     # says so (DDS drops what a publisher sends unmatched, without a word).
     output = vad.stdout.read() if vad.stdout else ""
     assert "SAFETY STOP reached no one: nothing subscribes to response_cmd" in output
+
+
+@pytest.mark.ros
+def test_a_lone_dont_said_over_the_robots_reply_is_a_stop(ros_namespace: str) -> None:
+    # Over the robot's voice a "stop" whose /s/ is clipped is decoded "don't" (and "Don't!" alone
+    # means stop): through the node, with the spotter cancelling the robot's voice itself (gate).
+    command = node("silero_vad_node", ros_namespace, "input_topic:=audio", "echo_gate:=true")
+    with probe_node(ros_namespace) as probe, running_process(command) as vad:
+        check = alive(vad)
+        states = probe.listen(String, "attention_state", LATCHED)
+        stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
+        commands = probe.listen(String, "response_cmd", RELIABLE)
+        speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
+        room = Room(probe)
+        spin_until(
+            probe,
+            check,
+            lambda: states and room.mic.get_subscription_count() and room.played.get_subscription_count(),
+            timeout=30,
+            what="the VAD node",
+        )
+        speaking.publish(Bool(data=True))
+        reply = at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", RATE), RATE), -16.0)
+        user = np.zeros(len(reply), dtype=np.int16)
+        word = at_level(trim_silence(espeak("Don't!", "en-us", RATE), RATE), -26.0)
+        user[int(3.5 * RATE) : int(3.5 * RATE) + len(word)] = word
+        room.play(user=user, robot=reply, realtime=True)
+        spin_until(probe, check, lambda: stops and commands, timeout=30, what="the stop")
+        assert [s.phrase for s in stops] == ["don't"] and [c.data for c in commands] == ["stop"]
 
 
 @pytest.mark.ros
