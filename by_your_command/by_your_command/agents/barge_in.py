@@ -6,7 +6,9 @@ cough, a knock or an "uh-huh" resumes the same reply where it paused. Proof, in 
 - speech: at least `min_ms` of it from the VAD's onset (the VAD's pre-roll and pauses do not
   count: a 100 ms cough arrives with half a second of pre-roll);
 - words (when a local transcriber runs and `min_words` > 0): at least that many words that are
-  not backchannels ("uh-huh", "yeah", "okay": they mean "go on").
+  not backchannels ("uh-huh", "yeah", "okay": they mean "go on"); or, after `long_ms` of speech,
+  one such word: the recogniser's small vocabulary merges words it does not know into fillers
+  ("turn to the left now" over the robot came out "soon oh"), and a backchannel is short.
 It is false when the utterance ended without that proof (once its whole audio is transcribed), or
 when `window_s` passed without it. Pure: the runtime gathers the evidence.
 """
@@ -35,6 +37,7 @@ class Rules:
     min_ms: float
     min_words: int  # 0: speech alone decides
     window_s: float
+    long_ms: float = 0.0  # speech this long needs one word that is not a backchannel (0: no such rule)
 
 
 @dataclass(frozen=True)
@@ -67,11 +70,16 @@ def judge(evidence: Evidence, rules: Rules) -> Verdict:
         return Verdict.FALSE if over else Verdict.WAIT
     if rules.min_words <= 0:
         return Verdict.CONFIRMED
-    if evidence.words is not None and evidence.words >= rules.min_words:
+    if evidence.words is not None and evidence.words >= _words_needed(evidence, rules):
         return Verdict.CONFIRMED
     if over and (evidence.transcript_current or evidence.windows_passed >= WINDOWS_BEFORE_GIVING_UP):
         return Verdict.FALSE
     return Verdict.WAIT
+
+
+def _words_needed(evidence: Evidence, rules: Rules) -> int:
+    long = rules.long_ms > 0 and evidence.speech_ms >= rules.long_ms
+    return min(rules.min_words, 1) if long else rules.min_words
 
 
 class BargeInWatch:

@@ -90,6 +90,10 @@ class AgentConfig:
     # the recogniser often hears a lone "uh-huh" as one everyday word; "stop" alone is the safety
     # stop's to hear (docs/vad_and_wake.md)
     min_barge_in_words: int = 2
+    # ...or, after this much speech, one such word: the recogniser merges words it does not know into
+    # fillers ("turn to the left now" over the robot: "soon oh"), and backchannels are short
+    # (bench_barge_in aec: every backchannel and cough <= 608 ms, real misses >= 1024 ms). 0: off
+    long_barge_in_ms: int = 900
     backchannels: tuple[str, ...] = DEFAULT_BACKCHANNELS  # said over the robot, they never interrupt
     barge_in_window_s: float = 1.5  # onset without that much proof within this window: resume
     # session cycling
@@ -213,6 +217,11 @@ def parse_agent_config(data: Any, source: str = "agent config") -> AgentConfig:
     if config is not None:
         if config.min_barge_in_ms < 0:
             problems.append(f"min_barge_in_ms: must be >= 0, got {config.min_barge_in_ms}")
+        if config.long_barge_in_ms != 0 and config.long_barge_in_ms < config.min_barge_in_ms:
+            problems.append(
+                f"long_barge_in_ms: 0 (off) or >= min_barge_in_ms ({config.min_barge_in_ms}), "
+                f"got {config.long_barge_in_ms}"
+            )
         if not 0 <= config.min_barge_in_words <= 20:
             problems.append(f"min_barge_in_words: must be within 0..20, got {config.min_barge_in_words}")
         if len(config.backchannels) > MAX_BACKCHANNELS or any(

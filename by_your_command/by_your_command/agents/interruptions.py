@@ -67,6 +67,7 @@ class Interruptions:
             config.min_barge_in_ms,
             config.min_barge_in_words if self._transcriber is not None else 0,
             config.barge_in_window_s,
+            config.long_barge_in_ms,
         )
         self._watch = BargeInWatch(rules)  # the barge-in being judged, if any
         self.cut: deque[str] = deque(maxlen=RECENT_CUTS)  # responses cut, newest last

@@ -190,6 +190,27 @@ def test_a_backchannel_long_enough_to_be_speech_resumes_the_reply(said: str) -> 
     run_virtual(scenario())
 
 
+@pytest.mark.parametrize(("said", "seconds", "cut"), [("wait um oh", 1.2, True), ("little", 0.6, False)])
+def test_long_speech_with_one_word_that_is_not_a_backchannel_interrupts(
+    said: str, seconds: float, cut: bool
+) -> None:
+    """Over the robot's voice the recogniser merged "wait a moment" into "wait um oh": one word
+    that counts, but 1.2 s of speech is no backchannel. A 0.6 s "uh-huh" heard "little" is."""
+
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=4.0, chunk_s=0.2), spoken_reply("r2", seconds=0.2))
+        async with running_agent(DUPLEX, factory, transcriber=Said(said)) as agent:
+            stream = await reply_playing(agent, 500)
+            agent.port.push(VoiceActivity(True))
+            await speak(agent.port, 2, seconds=seconds)
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        assert agent.port.of("interruption") == ([(stream, "barge_in")] if cut else [])
+        assert agent.port.of("resume") == ([] if cut else [(stream, "false_barge_in")])
+
+    run_virtual(scenario())
+
+
 def test_a_false_then_a_real_barge_in_truncates_at_all_that_was_heard() -> None:
     """Issue 34: the resumed remainder was a new stream whose played_ms started at 0, so the later
     truncation point was what was heard since the resume, not of the whole reply."""

@@ -52,6 +52,25 @@ def test_the_judge(evidence: Evidence, verdict: Verdict) -> None:
     assert judge(evidence, RULES) is verdict
 
 
+LONG = Rules(min_ms=400, min_words=2, window_s=1.5, long_ms=900)
+
+
+@pytest.mark.parametrize(
+    ("evidence", "verdict"),
+    [
+        (Evidence(1024, True, 0, 1, True), Verdict.CONFIRMED),  # "wait a moment" heard "wait um oh"
+        (Evidence(900, False, 0, 1, True), Verdict.CONFIRMED),
+        (Evidence(600, True, 0, 1, True), Verdict.FALSE),  # "uh-huh" heard "little": short
+        (Evidence(1300, True, 0, 0, True), Verdict.FALSE),  # "yeah, okay, uh-huh": only backchannels
+        (Evidence(1300, False, 0, None, False), Verdict.WAIT),  # no words yet
+    ],
+)
+def test_long_speech_needs_one_word_that_is_not_a_backchannel(evidence: Evidence, verdict: Verdict) -> None:
+    assert judge(evidence, LONG) is verdict
+    if evidence.speech_ms >= LONG.long_ms and evidence.words == 1:
+        assert judge(evidence, RULES) is not Verdict.CONFIRMED  # without the rule: two words needed
+
+
 def test_the_pre_roll_is_not_speech_and_the_first_utterance_over_the_reply_is_held() -> None:
     watch = BargeInWatch(RULES)
     cough = speech(96, pre_roll_ms=480, ended=True)  # a cough with the VAD's pre-roll: 576 ms of audio

@@ -99,6 +99,7 @@ def test_config_defaults_and_a_valid_file(tmp_path: Path) -> None:
         ({"role": "boss"}, "role: must be one of"),
         ({"topics": {"response_voce": "x"}}, "topics.response_voce: unknown key"),
         ({"reply_timeout_s": 0}, "reply_timeout_s: must be > 0"),
+        ({"long_barge_in_ms": 200}, r"long_barge_in_ms: 0 \(off\) or >= min_barge_in_ms \(400\)"),
         ({"api_key": "sk-123"}, "api_key: keys come from the environment"),
         (
             {"provider": {"model": "m", "api_key": "sk-123"}},
