@@ -92,7 +92,7 @@ class AgentConfig:
     min_barge_in_words: int = 2
     # ...or, after this much speech, one such word: the recogniser merges words it does not know into
     # fillers ("turn to the left now" over the robot: "soon oh"), and backchannels are short
-    # (bench_barge_in aec: every backchannel and cough <= 608 ms, real misses >= 1024 ms). 0: off
+    # (bench_barge_in aec: every backchannel and cough <= 608 ms, real misses >= 960 ms). 0: off
     long_barge_in_ms: int = 900
     backchannels: tuple[str, ...] = DEFAULT_BACKCHANNELS  # said over the robot, they never interrupt
     barge_in_window_s: float = 1.5  # onset without that much proof within this window: resume
