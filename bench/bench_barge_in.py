@@ -399,7 +399,11 @@ class Runner:
         )
 
         def onset() -> Stamped | None:
-            return next((a for a in self.bench.activity_heard[activity_from:] if a.msg.data), None)
+            heard = self.bench.activity_heard
+            new = next((a for a in heard[activity_from:] if a.msg.data), None)
+            if new is None and activity_from and heard[activity_from - 1].msg.data:
+                return heard[activity_from - 1]  # the VAD was in an (echo) utterance when the sound began
+            return new
 
         def resolution() -> Stamped | None:
             return next(

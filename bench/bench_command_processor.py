@@ -87,7 +87,8 @@ class Graph:
         self.node.create_subscription(CommandVerdict, "command_status", self._on_verdict, _qos.RELIABLE)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        threading.Thread(target=self.executor.spin, daemon=True).start()
+        self.spinning = threading.Thread(target=self.executor.spin, daemon=True)
+        self.spinning.start()
 
     def _on_verdict(self, verdict: Any) -> None:
         with self.lock:
@@ -99,6 +100,9 @@ class Graph:
         import rclpy
 
         self.executor.shutdown()
+        # A spin still running at exit aborts the interpreter ("terminate called without an
+        # active exception": make bench saw it once).
+        self.spinning.join(timeout=5)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
 

@@ -28,6 +28,7 @@ Voices: `TUNED` were looked at while choosing the parameters; `HELD_OUT` never w
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import shutil
 import subprocess
@@ -215,6 +216,18 @@ def p95(xs: list[float]) -> str:
     return f"median {np.median(xs) * 1000:.0f} ms, p95 {np.percentile(xs, 95) * 1000:.0f} ms"
 
 
+def ms(xs: list[float]) -> dict[str, float]:
+    """p50 / p95 in ms of times in seconds, for the JSON figures (empty: none)."""
+    if not xs:
+        return {}
+    return {"p50": round(float(np.median(xs)) * 1e3, 1), "p95": round(float(np.percentile(xs, 95)) * 1e3, 1)}
+
+
+def emit(figure: str, **fields: object) -> None:
+    """One figure as a JSON line (make bench collects them into its summary)."""
+    print(json.dumps({"bench": "safety_stop", "figure": figure, **fields}), flush=True)
+
+
 def node_path(trials: int) -> list[float]:
     """End of the word -> `stop` on response_cmd through the real silero_vad_node (a process, gate
     mode), the audio published in real time and stamped with the wall clock like audio_capture."""
@@ -338,6 +351,7 @@ def main() -> int:
             f"response_cmd: {p95(node)}, {len(node)}/{args.node_trials} heard",
             flush=True,
         )
+        emit("node_word_end_to_stop_routed_ms", **ms(node), heard=len(node), trials=args.node_trials)
 
     warm = speak(REPLY_TEMPLATES[7] + " " + OVER_REPLY, ROBOT_VOICES[0], 170)
     for set_name, voices in sets.items():
@@ -366,6 +380,16 @@ def main() -> int:
                 f"spotter CPU {100 * stream.cpu_s / stream.audio_s:.1f} % of a core)",
                 flush=True,
             )
+            emit(
+                "detected",
+                voices=set_name,
+                mode=mode,
+                value=round(hits / max(total, 1), 3),
+                unit="share",
+                hits=hits,
+                total=total,
+                word_end_to_decision_ms=ms(latencies),
+            )
 
     # aec mode's spotter hears what it hears in gate mode (the raw mic): not played twice.
     streams = {mode: Stream(mode, config) for mode in ("gate", "aec_filtered")}
@@ -387,6 +411,7 @@ def main() -> int:
             f"(rejected as own voice {spotter.own_voice}, repeated {spotter.repeated})",
             flush=True,
         )
+        emit("own_reply_false_stops", mode=label, value=count, unit="stops", replies=args.replies, goal=0)
 
     chat = Stream("quiet", config)
     chat_false = chat_total = 0
@@ -396,6 +421,7 @@ def main() -> int:
             chat_false += bool(found)
             chat_total += 1
     print(f"chat with stop-like words: false stops {pct(chat_false, chat_total)}")
+    emit("chat_false_stops", value=round(chat_false / max(chat_total, 1), 3), unit="share", lines=chat_total)
     print(f"bench time {time.perf_counter() - began:.0f} s")
     return 0
 
