@@ -1,7 +1,8 @@
 """VAD cost per 32 ms frame: the whole silero_vad_node callback (message in, reblocking, Silero,
 segmenter, utterance messages out through rclpy publishers) against bare onnxruntime Silero on the
 same audio, in the same run, pinned to one core. Reports medians, overhead % and real-time factor,
-and what 48 kHz input costs the node (continuous resampling to 16 kHz) against 16 kHz input.
+and what 48 kHz input costs the node (continuous resampling to 16 kHz) against 16 kHz input. The
+node is measured with the safety stop's spotter off (the VAD's own cost), and as shipped, with it.
 
     scripts/run.sh python bench/bench_vad.py [--rounds N]
 """
@@ -92,11 +93,14 @@ def callback(node: Any, messages: dict[int, Any]) -> Callable[[Int16Array], None
 
 def whole_node(
     frames: list[Int16Array], rates: tuple[int, ...]
-) -> tuple[dict[int, Callable[[Int16Array], None]], Callable[[], None]]:
+) -> tuple[dict[tuple[int, bool], Callable[[Int16Array], None]], Callable[[], None], Callable[[], None]]:
     """silero_vad_node's audio callback, called directly with ready AudioChunk messages (what rclpy
     hands a subscriber: DDS delivery and deserialization excluded; publishing the results included).
-    One node per input rate; each 16 kHz frame is sent as the same 32 ms of audio at that rate."""
+    One node per input rate, and at 16 kHz one more as shipped, with the safety stop's spotter (its
+    worker thread decodes the speech beside the callback, on the same pinned core); each 16 kHz
+    frame is sent as the same 32 ms of audio at that rate. Keys: (rate, spotter on)."""
     import rclpy
+    from rclpy.parameter import Parameter
 
     from by_your_command.nodes._audio_msgs import make_audio_chunk
     from by_your_command.nodes.silero_vad_node import SileroVadNode
@@ -104,9 +108,10 @@ def whole_node(
     rclpy.init(args=["bench", "--ros-args", "-r", f"__ns:=/bench_vad_{os.getpid()}"])
     pcm = np.concatenate(frames)
     nodes = []
-    runs: dict[int, Callable[[Int16Array], None]] = {}
-    for rate in rates:
-        node = SileroVadNode()
+    runs: dict[tuple[int, bool], Callable[[Int16Array], None]] = {}
+    settles: list[Any] = []
+    for rate, spotter in [(rate, False) for rate in rates] + [(16000, True)]:
+        node = SileroVadNode([Parameter("stop_spotter", value=spotter)])
         nodes.append(node)
         audio = resample(pcm, 16000, rate)
         block = WINDOW_SAMPLES * rate // 16000
@@ -118,14 +123,21 @@ def whole_node(
             )
             messages[id(frame)] = msg
 
-        runs[rate] = callback(node, messages)
+        runs[rate, spotter] = callback(node, messages)
+        if spotter:  # its worker's backlog must not run into the next variant's timing
+            settles.append(node)
+
+    def settle() -> None:
+        for node in settles:
+            while not node._safety.idle():
+                time.sleep(0.001)
 
     def close() -> None:
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
 
-    return runs, close
+    return runs, settle, close
 
 
 def measure(run: Callable[[Int16Array], None], frames: list[Int16Array]) -> tuple[list[float], float]:
@@ -147,23 +159,26 @@ def main() -> int:
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     pcm = corpus_audio()
     frames = [pcm[i : i + WINDOW_SAMPLES] for i in range(0, len(pcm), WINDOW_SAMPLES)]
-    node_runs, node_close = whole_node(frames, (16000, 48000))
+    node_runs, node_settle, node_close = whole_node(frames, (16000, 48000))
     variants: dict[str, Callable[[Int16Array], None]] = {
         "bare_onnxruntime": bare_onnxruntime(),
         "silero_model": model_only(),
         "detector": detector_only(),
-        "vad_node_callback": node_runs[16000],
-        "vad_node_callback_48k": node_runs[48000],
+        "vad_node_callback": node_runs[16000, False],
+        "vad_node_callback_48k": node_runs[48000, False],
+        "vad_node_callback_with_stop_spotter": node_runs[16000, True],
         **resamplers(frames),
     }
     samples: dict[str, list[float]] = {name: [] for name in variants}
     cpu: dict[str, float] = dict.fromkeys(variants, 0.0)
     for run in variants.values():  # warm-up
         measure(run, frames[:50])
+        node_settle()
     started = time.monotonic()
     for _ in range(args.rounds):  # interleaved so drift on a shared machine hits all variants alike
         for name, run in variants.items():
             times, seconds = measure(run, frames)
+            node_settle()  # the spotter's decoding, left after its pass, counts for no one
             samples[name] += times
             cpu[name] += seconds
         if time.monotonic() - started > 45:

@@ -28,6 +28,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption, SafetyStop
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 
 from by_your_command.local_speech.speaker import Speaker, SpeakerConfig, SpeechError
@@ -68,8 +69,8 @@ def _to_ns(stamp: Time) -> int:
 
 
 class SileroVadNode(Node):
-    def __init__(self) -> None:
-        super().__init__("silero_vad_node")
+    def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
+        super().__init__("silero_vad_node", parameter_overrides=parameter_overrides)
         self.config = declare_config(self, VadConfig)
         self.detector = VoiceDetector(self.config, SileroModel())
         self.attention = Attention(awake=self.config.start_awake)
