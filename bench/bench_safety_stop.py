@@ -15,6 +15,7 @@ interleaved in time order). Scenarios:
   quiet       a stop in a quiet room (asleep / muted: the spotter is fed the same in every state)
   own_reply   the robot's own replies saying stop / stopping / halt, played into the mic: false stops
   chat        the user's chat with stop-like words ("don't stop believing"): false stops
+  lone_words  everyday words said alone in a quiet room ("robot", "what", "thanks"): false stops
 
 Each mode is one robot listening for a while: the spotter (and in aec_filtered mode the
 echo_suppressor's controller) is kept across trials on one timeline, so AEC3 and its echo guard
@@ -77,6 +78,12 @@ CHAT = [
     "put it in the freezer",
     "a nonstop flight to Boston",
 ]
+# Said alone, as people answer or call a robot: one word is where the spotter leans furthest to
+# stopping (a lone word with a keyphrase hit stands for a clipped stop).
+LONE_WORDS = [
+    "yes", "no", "okay", "hello", "thanks", "left", "right", "go", "wait", "hey", "what",
+    "robot", "look", "come", "help", "sure", "great", "hi", "up", "down", "again",
+]  # fmt: skip
 REPLY_TEMPLATES = [
     "Okay, I will stop here.",
     "Stopping.",
@@ -433,6 +440,17 @@ def main() -> int:
             chat_total += 1
     print(f"chat with stop-like words: false stops {pct(chat_false, chat_total)}")
     emit("chat_false_stops", value=round(chat_false / max(chat_total, 1), 3), unit="share", lines=chat_total)
+
+    lone_false: dict[str, int] = {}
+    for voice in TUNED + HELD_OUT:
+        for word in LONE_WORDS:
+            found, _ = chat.play(speak(word, voice, 165), None, 0.5)
+            if found:
+                lone_false[word] = lone_false.get(word, 0) + 1
+    lone_total = len(LONE_WORDS) * len(TUNED + HELD_OUT)
+    lone_count = sum(lone_false.values())
+    print(f"everyday words said alone: false stops {pct(lone_count, lone_total)} {lone_false}")
+    emit("lone_word_false_stops", value=round(lone_count / lone_total, 3), unit="share", words=lone_false)
     print(f"bench time {time.perf_counter() - began:.0f} s")
     return 0
 
