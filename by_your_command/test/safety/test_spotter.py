@@ -54,6 +54,16 @@ def test_stop_like_chat_is_not_a_stop(spotter_config: StopConfig, text: str) -> 
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize("voice", ["en-us-nyc", "en-gb-x-gbcwmd"])
+def test_the_robot_called_by_name_is_not_stopped(spotter_config: StopConfig, voice: str) -> None:
+    """A lone "Robot?" was heard "oh halt" in these voices; said with a stop, it still stops."""
+    spotter = StopSpotter(spotter_config, cancel_echo=False)
+    assert feed(spotter, said("robot", voice)) == []
+    assert spotter.last_text == "robot"
+    assert len(feed(StopSpotter(spotter_config, cancel_echo=False), said("robot, stop", voice))) == 1
+
+
+@pytest.mark.unit
 def test_the_robots_own_stop_in_the_reference_is_rejected(spotter_config: StopConfig) -> None:
     played = said("stop it")
     delay = int(0.12 * RATE)  # the robot heard back through the room, 120 ms later
