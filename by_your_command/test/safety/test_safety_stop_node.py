@@ -194,6 +194,25 @@ def test_a_lone_dont_said_over_the_robots_reply_is_a_stop(ros_namespace: str) ->
 
 
 @pytest.mark.ros
+def test_the_robot_called_by_name_through_the_node_is_not_stopped(ros_namespace: str) -> None:
+    # A lone "Robot?" was heard "oh halt" in these voices and stopped the robot (bench_safety_stop,
+    # lone_words). A stop said after it is the marker that the node has judged what came before.
+    command = node("silero_vad_node", ros_namespace, "input_topic:=audio", "echo_gate:=true")
+    with probe_node(ros_namespace) as probe, running_process(command) as vad:
+        check = alive(vad)
+        states = probe.listen(String, "attention_state", LATCHED)
+        stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
+        room = Room(probe)
+        ready = lambda: states and room.mic.get_subscription_count()  # noqa: E731
+        spin_until(probe, check, ready, timeout=30, what="the VAD node")
+        for voice in ("en-us-nyc", "en-gb-x-gbcwmd"):
+            room.play(user=said("robot", voice), realtime=True)
+        room.play(user=said("stop it"), realtime=True)
+        spin_until(probe, check, lambda: stops, timeout=30, what="the stop after the names")
+        assert [s.phrase for s in stops] == ["stop it"]
+
+
+@pytest.mark.ros
 @pytest.mark.parametrize(
     "param", ["stop_language:=klingon", "stop_phrases:=[stop,blorptastic]", "stop_input_topic:=blorp//tastic"]
 )
