@@ -14,17 +14,20 @@ interleaved in time order). Scenarios:
               gate_raw (baseline): gate with the spotter's echo cancellation off (the raw mic)
   quiet       a stop in a quiet room (asleep / muted: the spotter is fed the same in every state)
   own_reply   the robot's own replies saying stop / stopping / halt, played into the mic: false stops
-  chat        the user's chat with stop-like words ("don't stop believing"): false stops
+  chat        the user's chat with stop-like words ("don't stop believing"): false stops, in a quiet
+              room and over a reply (gate, aec)
   lone_words  everyday words said alone in a quiet room ("robot", "what", "thanks"): false stops
 
 Each mode is one robot listening for a while: the spotter (and in aec_filtered mode the
 echo_suppressor's controller) is kept across trials on one timeline, so AEC3 and its echo guard
 have converged on earlier replies, as on a robot that has been talking; each trial ends with 1.5 s of quiet.
-Latency here = end of the word -> the spotter's decision on a real-time stream: the audio the
+Latency here = end of the word (as said, at the mic: not where the spotter's utterance ended, which
+the robot's residual echo may carry on) -> the spotter's decision on a real-time stream: the audio the
 decision waited for (the end silence, 32 ms blocks, the suppressor's reference wait) plus the
 compute of the block that decided. The ROS hop after it (guard condition, publish) is not in it.
 Voices: `TUNED` were looked at while choosing the parameters; `HELD_OUT` and `HELD_OUT_2` never
-were (`HELD_OUT_2`'s quiet-room misses were read once, 2026-11-29; nothing was changed from them).
+were (`HELD_OUT_2`'s quiet-room misses were read once, 2026-11-29; nothing was changed from them);
+`HELD_OUT_3` (named espeak variants, used nowhere else) was added after that, for validation.
 """
 
 from __future__ import annotations
@@ -64,6 +67,11 @@ HELD_OUT = ["en-us-nyc", "en-gb-x-gbclan", "en+f4", "en-gb-x-gbcwmd", "en-us+m6"
 HELD_OUT_2 = [
     "en-us+m1", "en-gb+f2", "en+m5", "en-us+f5", "en-gb-x-rp+m4",
     "en-029+f3", "en-us-nyc+m2", "en-gb-x-gbclan+f1", "en-gb-scotland+f4", "en-gb-x-gbcwmd+m2",
+]  # fmt: skip
+# A third (2026-11-29), after HELD_OUT_2's quiet misses had been read: espeak's named variants.
+HELD_OUT_3 = [
+    "en-us+Andy", "en-gb+belinda", "en+david", "en-us+linda", "en-gb-x-rp+edward",
+    "en-029+max", "en-us-nyc+steph", "en-gb-x-gbclan+travis", "en-gb-scotland+anika", "en-gb-x-gbcwmd+quincy",
 ]  # fmt: skip
 ROBOT_VOICES = ["en-gb", "en-us+m3", "en-us+f1", "en-gb-x-rp+f2"]
 STOPS = ["stop", "stop it", "halt", "freeze", "stop stop"]
@@ -136,8 +144,9 @@ def _rms_db(x: npt.NDArray[np.float64]) -> float:
 
 @dataclass(frozen=True)
 class Found:
-    voice_end_ns: int
-    latency_s: float
+    voice_start_ns: int
+    voice_end_ns: int  # where the spotter's utterance ended (residual echo may carry it on)
+    decided_ns: int  # the end of the block that decided, plus its compute
 
 
 def compose(
@@ -182,8 +191,8 @@ class Stream:
 
     def play(
         self, user: Int16Array | None, reply: Int16Array | None, user_at_s: float = 2.5
-    ) -> tuple[list[Found], int]:
-        """Detections and the user's word end (ns)."""
+    ) -> tuple[list[Found], tuple[int, int]]:
+        """Detections and the user's words at the mic (start ns, end ns)."""
         mic, played, end_s = compose(user, reply, user_at_s)
         base = self.clock
         found = []
@@ -214,10 +223,12 @@ class Stream:
             self.cpu_s += time.process_time() - cpu
             spent = time.perf_counter() - began
             block_end = stamp + BLOCK * NS // RATE
-            found += [Found(d.voice_end_ns, (block_end - d.voice_end_ns) / NS + spent) for d in detections]
+            decided = block_end + int(spent * NS)
+            found += [Found(d.voice_start_ns, d.voice_end_ns, decided) for d in detections]
         self.audio_s += len(mic) / RATE
         self.clock = base + len(mic) * NS // RATE  # continuous: the trial ends with 1.5 s of quiet
-        return found, base + int(end_s * NS)
+        said_ns = (len(user) if user is not None else 0) * NS // RATE
+        return found, (base + int(end_s * NS) - said_ns, base + int(end_s * NS))
 
 
 def pct(a: int, b: int) -> str:
@@ -328,12 +339,18 @@ def node_path(trials: int) -> list[float]:
     return latencies
 
 
-def stops_heard(stream: Stream, texts: list[str], voices: list[str]) -> dict[str, int]:
-    """Each text said in each voice in a quiet room: how many voices' saying it stopped the robot."""
+def stops_heard(
+    stream: Stream, texts: list[str], voices: list[str], over_reply: bool = False
+) -> dict[str, int]:
+    """Each text said in each voice, in a quiet room or over a reply: how many voices' saying it
+    stopped the robot."""
     stopped: dict[str, int] = {}
-    for voice in voices:
-        for text in texts:
-            found, _ = stream.play(speak(text, voice, 165), None, 0.5)
+    for v_index, voice in enumerate(voices):
+        for t_index, text in enumerate(texts):
+            reply = None
+            if over_reply:
+                reply = speak(OVER_REPLY, ROBOT_VOICES[(v_index + t_index) % len(ROBOT_VOICES)], 170)
+            found, _ = stream.play(speak(text, voice, 165), reply, 1.5 if over_reply else 0.5)
             if found:
                 stopped[text] = stopped.get(text, 0) + 1
     return stopped
@@ -350,8 +367,9 @@ def main() -> int:
     )
     parser.add_argument("--node-trials", type=int, default=20, help="stops through the real node (0: none)")
     parser.add_argument(
-        "--more-voices", action="store_true", help="detection on a second held-out set (10 voices) too"
+        "--more-voices", action="store_true", help="detection on the second and third held-out sets too"
     )
+    parser.add_argument("--sets", default="", help="only these voice sets (e.g. held_out_3)")
     args = parser.parse_args()
     config = StopConfig()
     rates = [150, 185]
@@ -360,7 +378,10 @@ def main() -> int:
         sets = {"tuned": TUNED[:2], "held_out": HELD_OUT[:2]}
         args.replies = min(args.replies, 24)
     if args.more_voices:
-        sets["held_out_2"] = HELD_OUT_2
+        sets |= {"held_out_2": HELD_OUT_2, "held_out_3": HELD_OUT_3}
+    if args.sets:
+        every = {"tuned": TUNED, "held_out": HELD_OUT, "held_out_2": HELD_OUT_2, "held_out_3": HELD_OUT_3}
+        sets = {name: every[name] for name in args.sets.split(",")}
     began = time.perf_counter()
 
     probe = StopSpotter(config, cancel_echo=False)._mic_recognizer
@@ -397,12 +418,15 @@ def main() -> int:
                         robot = ROBOT_VOICES[(v_index + p_index) % len(ROBOT_VOICES)]
                         reply = None if mode == "quiet" else speak(OVER_REPLY, robot, 170)
                         at = 1.5 + (p_index + rate) % 3  # 1.5, 2.5 or 3.5 s into a ~5 s reply
-                        found, word_end = stream.play(speak(phrase, voice, rate), reply, at)
-                        good = [f for f in found if abs(f.voice_end_ns - word_end) < 0.4 * NS]
+                        found, (word_start, word_end) = stream.play(speak(phrase, voice, rate), reply, at)
+                        # A stop heard in the user's words, however late the utterance ended.
+                        good = [
+                            f for f in found if f.voice_start_ns < word_end and f.voice_end_ns > word_start
+                        ]
                         total += 1
                         if good:
                             hits += 1
-                            latencies.append(good[0].latency_s)
+                            latencies.append((good[0].decided_ns - word_end) / NS)
             spotter = stream.spotter
             print(
                 f"{set_name:8s} {mode:12s} detected {pct(hits, total)}, end of word -> decision: "
@@ -443,13 +467,15 @@ def main() -> int:
         )
         emit("own_reply_false_stops", mode=label, value=count, unit="stops", replies=args.replies, goal=0)
 
-    chat = Stream("quiet", config)
+    quiet, over_reply = Stream("quiet", config), Stream("gate", config)
+    over_reply.warm_up(warm)
     voices = TUNED + HELD_OUT
-    for name, texts, label in (
-        ("chat_false_stops", CHAT, "chat with stop-like words"),
-        ("lone_word_false_stops", LONE_WORDS, "everyday words said alone"),
+    for name, texts, label, stream in (
+        ("chat_false_stops", CHAT, "chat with stop-like words", quiet),
+        ("chat_over_reply_false_stops", CHAT, "the same chat over a reply (gate, aec)", over_reply),
+        ("lone_word_false_stops", LONE_WORDS, "everyday words said alone", quiet),
     ):
-        stopped = stops_heard(chat, texts, voices)
+        stopped = stops_heard(stream, texts, voices, over_reply=stream is over_reply)
         count, total = sum(stopped.values()), len(texts) * len(voices)
         print(f"{label}: false stops {pct(count, total)} {stopped}")
         emit(name, value=round(count / total, 3), unit="share", lines=total, stopped=stopped)

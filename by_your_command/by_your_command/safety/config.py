@@ -43,6 +43,13 @@ class StopConfig:
     end_silence_ms: int = field(
         default=180, metadata={"help": "quiet that ends an utterance (adds to the latency)"}
     )
+    end_drop_db: float = field(
+        default=15.0,
+        metadata={
+            "help": "while the robot's voice is cancelled, audio this far under an utterance's "
+            "loudest is quiet: its residual echo does not hold a stop's end back"
+        },
+    )
     max_utterance_ms: int = field(
         default=1800, metadata={"help": "longer speech is a sentence, not a stop, and is not decoded"}
     )
@@ -88,6 +95,8 @@ class StopConfig:
             raise ValueError(f"stop_onset_db must be in [3, 40], got {self.onset_db}")
         if not 60 <= self.end_silence_ms <= 1000:
             raise ValueError(f"stop_end_silence_ms must be in [60, 1000], got {self.end_silence_ms}")
+        if not 6.0 <= self.end_drop_db <= 60.0:  # also refuses NaN
+            raise ValueError(f"stop_end_drop_db must be in [6, 60], got {self.end_drop_db}")
         if not 500 <= self.max_utterance_ms <= 5000:
             raise ValueError(f"stop_max_utterance_ms must be in [500, 5000], got {self.max_utterance_ms}")
         if not 0 <= self.max_other_words <= 3:

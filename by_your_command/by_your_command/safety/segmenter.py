@@ -59,9 +59,17 @@ class LevelSegmenter:
     """16 kHz mono frames in, utterance events out. Not thread-safe."""
 
     def __init__(
-        self, min_level_dbfs: float, onset_db: float, end_silence_ms: int, max_utterance_ms: int
+        self,
+        min_level_dbfs: float,
+        onset_db: float,
+        end_silence_ms: int,
+        max_utterance_ms: int,
+        end_drop_db: float | None = None,
     ) -> None:
         self._min_level = min_level_dbfs
+        # Inside an utterance, a frame this far under its loudest is quiet, however far above the
+        # noise floor (None: only the floor counts). Set by the caller while it applies.
+        self.end_drop_db = end_drop_db
         self._onset = onset_db
         self._end_frames = max(1, end_silence_ms * RATE // 1000 // FRAME)
         self._max_frames = max(1, max_utterance_ms * RATE // 1000 // FRAME)
@@ -75,6 +83,7 @@ class LevelSegmenter:
         self._quiet = 0  # frames of quiet since the last speech frame
         self._voice_start = 0
         self._voice_end = 0
+        self._peak_db = -120.0
         self.frames = 0
         self.utterances = 0
         self.abandoned = 0
@@ -121,6 +130,8 @@ class LevelSegmenter:
         self.frames += 1
         level = level_dbfs(frame)
         speech = level >= max(self._min_level, self.floor_db + self._onset)
+        if self._open and self.end_drop_db is not None and level < self._peak_db - self.end_drop_db:
+            speech = False  # what is left under the word (the robot's residual echo): its end
         if not speech and not self.active:
             # The floor follows quiet down at once and creeps up slowly.
             self.floor_db = min(level, self.floor_db + FLOOR_RISE_DB_PER_FRAME)
@@ -136,6 +147,7 @@ class LevelSegmenter:
                 self._pre_roll.append((stamp, frame))
                 return
             self._open = True
+            self._peak_db = level
             self._voiced, self._quiet = 0, 0
             self._voice_start = stamp
             first = self._pre_roll[0][0] if self._pre_roll else stamp
@@ -144,6 +156,7 @@ class LevelSegmenter:
             self._pre_roll.clear()
         events.append(Audio(frame))
         if speech:
+            self._peak_db = max(self._peak_db, level)
             self._voiced += 1
             self._quiet = 0
             self._voice_end = end

@@ -127,6 +127,10 @@ class VadConfig:
         default=StopConfig.end_silence_ms,
         metadata={"help": "quiet that ends an utterance (most of the latency)"},
     )
+    stop_end_drop_db: float = field(
+        default=StopConfig.end_drop_db,
+        metadata={"help": "over the robot's voice: audio this far under an utterance's loudest is quiet"},
+    )
     stop_max_utterance_ms: int = field(
         default=StopConfig.max_utterance_ms,
         metadata={"help": "longer speech is a sentence, not a stop, and is not decoded"},
@@ -199,6 +203,7 @@ class VadConfig:
             min_level_dbfs=self.stop_min_level_dbfs,
             onset_db=self.stop_onset_db,
             end_silence_ms=self.stop_end_silence_ms,
+            end_drop_db=self.stop_end_drop_db,
             max_utterance_ms=self.stop_max_utterance_ms,
             max_other_words=self.stop_max_other_words,
             own_voice_window_ms=self.stop_own_voice_window_ms,

@@ -64,6 +64,16 @@ def test_the_robot_called_by_name_is_not_stopped(spotter_config: StopConfig, voi
 
 
 @pytest.mark.unit
+@pytest.mark.parametrize(
+    ("text", "voice"), [("a nonstop flight to Boston", "en-gb"), ("don't stop believing", "en+m3")]
+)
+def test_chat_in_a_quiet_room_is_judged_whole(spotter_config: StopConfig, text: str, voice: str) -> None:
+    """The robot silent, the spotter's end-of-utterance rule for its residual echo does not apply:
+    with it, these lines were cut at a weak consonant and "our stop" or "don't" stopped the robot."""
+    assert feed(StopSpotter(spotter_config, cancel_echo=True), said(text, voice)) == []
+
+
+@pytest.mark.unit
 def test_the_robots_own_stop_in_the_reference_is_rejected(spotter_config: StopConfig) -> None:
     played = said("stop it")
     delay = int(0.12 * RATE)  # the robot heard back through the room, 120 ms later
@@ -104,6 +114,7 @@ def test_matcher_leans_to_detect_but_never_on_a_negation() -> None:
         ({"stop_phrases": ["stop", ""]}, "is not a phrase"),
         ({"stop_refractory_ms": -1}, "stop_refractory_ms"),
         ({"stop_end_silence_ms": 5}, "stop_end_silence_ms"),
+        ({"stop_end_drop_db": float("nan")}, "stop_end_drop_db must be in"),
         ({"stop_input_topic": "raw mic"}, "stop_input_topic 'raw mic' is not a topic name"),
         ({"stop_input_topic": "audio//raw"}, "is not a topic name"),
     ],
