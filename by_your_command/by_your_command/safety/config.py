@@ -46,8 +46,9 @@ class StopConfig:
     end_drop_db: float = field(
         default=15.0,
         metadata={
-            "help": "while the robot's voice is cancelled, audio this far under an utterance's "
-            "loudest is quiet: its residual echo does not hold a stop's end back"
+            "help": "while the robot's voice is cancelled, end_silence_ms this far under an "
+            "utterance's loudest is a pause where a clean stop is decided (its residual echo "
+            "holds the utterance's end back)"
         },
     )
     max_utterance_ms: int = field(

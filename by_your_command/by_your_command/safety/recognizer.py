@@ -109,7 +109,11 @@ class StopMatcher:
         words = [w for w in words_of(text) if w not in FILLER_WORDS]
         return bool(self.phrases_in(text)) or (len(words) == 1 and words[0] in HEARD_FOR_A_STOP)
 
-    def phrases_in(self, text: str) -> tuple[str, ...]:
+    def is_clean_stop(self, text: str) -> bool:
+        """Stop phrases and filler words only."""
+        return bool(self.phrases_in(text, max_other=0))
+
+    def phrases_in(self, text: str, max_other: int | None = None) -> tuple[str, ...]:
         """The stop phrases the transcript holds, if it is a stop (else ()): whole phrases only ("it"
         alone is not "stop it"), no negation, at most `max_other_words` words outside them."""
         words = [w for w in words_of(text) if w not in FILLER_WORDS]
@@ -121,7 +125,7 @@ class StopMatcher:
                     found.append(phrase)
                     covered[start : start + size] = [True] * size
         others = covered.count(False)
-        if not found or others > self._max_other:
+        if not found or others > (self._max_other if max_other is None else max_other):
             return ()
         # A negation before the stop negates it ("don't stop"); after it, it is no taking back
         # ("stop, don't!"), and a second "stop" whose /s/ the echo guard took is heard "don't".

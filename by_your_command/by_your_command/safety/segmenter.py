@@ -1,11 +1,12 @@
 """Short utterances cut from a stream by level alone: cheap enough to run on every block.
 
 A tracked noise floor decides which 20 ms frames are speech; an utterance ends after
-`end_silence_ms` of quiet. Speech longer than `max_utterance_ms` is a sentence, not a stop: it
-is abandoned (never decoded) until the next pause, which keeps the recogniser idle through
-talk. Nothing here is decoded: the caller hands the frames to the recogniser as they come, so
-the decode is done when the utterance ends (the end of the word to a stop is the quiet that ends
-it plus a few ms).
+`end_silence_ms` of quiet. Over the robot's voice its residual echo stays above the floor after
+the user's word: `Paused` says the utterance has been well under its loudest that long. Speech
+longer than `max_utterance_ms` is a sentence, not a stop: it is abandoned (never decoded) until
+the next pause, which keeps the recogniser idle through talk. Nothing here is decoded: the caller
+hands the frames to the recogniser as they come, so the decode is done when the utterance ends
+(the end of the word to a stop is the quiet that ends it plus a few ms).
 """
 
 from __future__ import annotations
@@ -43,11 +44,20 @@ class Ended:
 
 
 @dataclass(frozen=True)
+class Paused:
+    """`end_silence_ms` under the utterance's loudest by `end_drop_db`, though not yet quiet: the
+    word may be over and what goes on the robot's residual echo (or it is a weak consonant)."""
+
+    voice_start_ns: int
+    voice_end_ns: int  # end of the last frame within end_drop_db of the loudest
+
+
+@dataclass(frozen=True)
 class Abandoned:
     """The open utterance grew into a sentence: drop what was decoded."""
 
 
-SegmentEvent = Started | Audio | Ended | Abandoned
+SegmentEvent = Started | Audio | Paused | Ended | Abandoned
 
 
 def level_dbfs(frame: Int16Array) -> float:
@@ -67,8 +77,8 @@ class LevelSegmenter:
         end_drop_db: float | None = None,
     ) -> None:
         self._min_level = min_level_dbfs
-        # Inside an utterance, a frame this far under its loudest is quiet, however far above the
-        # noise floor (None: only the floor counts). Set by the caller while it applies.
+        # Inside an utterance, `end_silence_ms` this far under its loudest is a pause (`Paused`),
+        # however far above the noise floor (None: no pauses). Set by the caller while it applies.
         self.end_drop_db = end_drop_db
         self._onset = onset_db
         self._end_frames = max(1, end_silence_ms * RATE // 1000 // FRAME)
@@ -84,6 +94,8 @@ class LevelSegmenter:
         self._voice_start = 0
         self._voice_end = 0
         self._peak_db = -120.0
+        self._under = 0  # frames under the loudest by end_drop_db since the last loud one
+        self._loud_end = 0
         self.frames = 0
         self.utterances = 0
         self.abandoned = 0
@@ -130,8 +142,6 @@ class LevelSegmenter:
         self.frames += 1
         level = level_dbfs(frame)
         speech = level >= max(self._min_level, self.floor_db + self._onset)
-        if self._open and self.end_drop_db is not None and level < self._peak_db - self.end_drop_db:
-            speech = False  # what is left under the word (the robot's residual echo): its end
         if not speech and not self.active:
             # The floor follows quiet down at once and creeps up slowly.
             self.floor_db = min(level, self.floor_db + FLOOR_RISE_DB_PER_FRAME)
@@ -148,15 +158,15 @@ class LevelSegmenter:
                 return
             self._open = True
             self._peak_db = level
-            self._voiced, self._quiet = 0, 0
+            self._voiced, self._quiet, self._under = 0, 0, 0
             self._voice_start = stamp
             first = self._pre_roll[0][0] if self._pre_roll else stamp
             events.append(Started(first))
             events.extend(Audio(f) for _, f in self._pre_roll)
             self._pre_roll.clear()
         events.append(Audio(frame))
+        self._track_pause(level if speech else -120.0, end, events)
         if speech:
-            self._peak_db = max(self._peak_db, level)
             self._voiced += 1
             self._quiet = 0
             self._voice_end = end
@@ -167,7 +177,18 @@ class LevelSegmenter:
             return
         self._quiet += 1
         if self._quiet >= self._end_frames:
+            if events and isinstance(events[-1], Paused):
+                events.pop()  # it ends here anyway
             self._open = False
             self._quiet = 0
             self.utterances += 1
             events.append(Ended(self._voice_start, self._voice_end))
+
+    def _track_pause(self, level: float, end: int, events: list[SegmentEvent]) -> None:
+        if level >= self._peak_db - (self.end_drop_db or 0.0):
+            self._peak_db = max(self._peak_db, level)
+            self._under, self._loud_end = 0, end
+            return
+        self._under += 1
+        if self.end_drop_db is not None and self._under == self._end_frames:
+            events.append(Paused(self._voice_start, self._loud_end))

@@ -129,7 +129,7 @@ class VadConfig:
     )
     stop_end_drop_db: float = field(
         default=StopConfig.end_drop_db,
-        metadata={"help": "over the robot's voice: audio this far under an utterance's loudest is quiet"},
+        metadata={"help": "over the robot's voice: this far under an utterance's loudest is a pause"},
     )
     stop_max_utterance_ms: int = field(
         default=StopConfig.max_utterance_ms,

@@ -1,4 +1,4 @@
-"""The stop spotter's level segmenter: where an utterance starts and ends."""
+"""The stop spotter's level segmenter: where an utterance starts, pauses and ends."""
 
 from __future__ import annotations
 
@@ -7,7 +7,15 @@ import pytest
 
 from by_your_command.audio.pcm import Int16Array
 from by_your_command.safety.config import StopConfig
-from by_your_command.safety.segmenter import FRAME, NS_PER_S, RATE, Ended, LevelSegmenter, SegmentEvent
+from by_your_command.safety.segmenter import (
+    FRAME,
+    NS_PER_S,
+    RATE,
+    Ended,
+    LevelSegmenter,
+    Paused,
+    SegmentEvent,
+)
 
 T0 = 1_000 * NS_PER_S
 
@@ -23,27 +31,27 @@ def segment(pcm: Int16Array, end_drop_db: float | None = StopConfig.end_drop_db)
     events: list[SegmentEvent] = []
     for k in range(0, len(pcm) - FRAME + 1, FRAME):
         events += segmenter.push(pcm[k : k + FRAME], T0 + k * NS_PER_S // RATE)
-    return events
+    return [e for e in events if isinstance(e, Paused | Ended)]
+
+
+def at(seconds: float) -> int:
+    return T0 + int(seconds * NS_PER_S)
 
 
 @pytest.mark.unit
-def test_an_utterance_ends_with_the_word_not_with_the_echo_left_under_it() -> None:
+def test_a_word_over_the_echo_left_under_it_pauses_where_the_word_ends() -> None:
     # A word at -20 dBFS, then 1 s of the robot's residual echo at -48 dBFS: above the room's floor
-    # (alone it is speech), far under the word. The word's end is its utterance's end (the echo
-    # may then be an utterance of its own).
+    # (alone it is speech), far under the word. The utterance pauses at the word's end (the
+    # spotter may decide there) and, judged on the floor, ends with the echo.
     quiet = tone(0.5, -75)
     pcm = np.concatenate([quiet, tone(0.4, -20), tone(1.0, -48), quiet])
-    ended = [e for e in segment(pcm) if isinstance(e, Ended)]
-    assert ended[0].voice_start_ns == T0 + int(0.5 * NS_PER_S)
-    assert ended[0].voice_end_ns == T0 + int(0.9 * NS_PER_S)
-    # Judged on the floor alone, the echo carries the word on to its own end.
-    assert [e for e in segment(pcm, None) if isinstance(e, Ended)][0].voice_end_ns == T0 + int(1.9 * NS_PER_S)
+    assert segment(pcm) == [Paused(at(0.5), at(0.9)), Ended(at(0.5), at(1.9))]
+    assert segment(pcm, None) == [Ended(at(0.5), at(1.9))]  # no pauses where nothing is cancelled
 
 
 @pytest.mark.unit
-def test_a_quieter_second_word_stays_in_the_utterance() -> None:
-    # "stop ... it": the second word 10 dB under the first, after a short gap.
+def test_a_quieter_second_word_is_no_pause_and_a_quiet_end_is_no_pause() -> None:
+    # "stop ... it": the second word 10 dB under the first, after a short gap; then the room.
     quiet = tone(0.5, -75)
     pcm = np.concatenate([quiet, tone(0.3, -20), tone(0.08, -75), tone(0.2, -30), quiet])
-    ended = [e for e in segment(pcm) if isinstance(e, Ended)]
-    assert len(ended) == 1 and ended[0].voice_end_ns == T0 + int(1.08 * NS_PER_S)
+    assert segment(pcm) == [Ended(at(0.5), at(1.08))]

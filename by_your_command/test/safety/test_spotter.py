@@ -246,3 +246,32 @@ def test_the_spotter_tells_its_residual_echo_from_a_voice_over_it(spotter_config
     assert voice_over == [False]
     # Not cancelling (the robot silent): nothing was taken away.
     assert not StopSpotter(spotter_config, cancel_echo=True)._mostly_echo(at(0), at(RATE))
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("word", ["stop", "freeze"])
+def test_a_stop_over_the_reply_is_decided_at_its_pause_not_after_the_echo(
+    spotter_config: StopConfig, word: str
+) -> None:
+    # The robot's residual echo stays above the floor after the word and held the utterance's end
+    # back: decided where the audio fell well under the word (stop_end_drop_db), the stop comes
+    # less than 150 ms of audio after the word; judged at the utterance's end, 200-235 ms.
+    played = at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", RATE), RATE), -18.0)
+    played = np.concatenate([np.zeros(RATE // 2, dtype=np.int16), played, np.zeros(RATE, dtype=np.int16)])
+    echo = at_level(Room().echo(played, RATE), -22.0).astype(np.float64)
+    user = at_level(trim_silence(espeak(word, "en-us", RATE), RATE), -26.0)
+    user_at = int(2.5 * RATE)
+    spotter = StopSpotter(spotter_config, cancel_echo=True)
+    start, decided = T0, []
+    for trial in range(2):  # the first reply alone: the canceller converges, as on a robot that talks
+        mic = echo.copy()
+        if trial:
+            mic[user_at : user_at + len(user)] += user
+        mic_pcm = np.clip(mic, -32768, 32767).astype(np.int16)
+        for k in range(0, len(mic_pcm) - BLOCK + 1, BLOCK):
+            spotter.reference(played[k : k + BLOCK], RATE, 1, start + k * NS // RATE)
+            if spotter.mic(mic_pcm[k : k + BLOCK], RATE, 1, start + k * NS // RATE):
+                decided.append((trial, k + BLOCK - (user_at + len(user))))
+        start += len(mic_pcm) // BLOCK * BLOCK * NS // RATE
+    assert len(decided) == 1 and decided[0][0] == 1
+    assert decided[0][1] < 0.15 * RATE  # audio after the word's end, when the stop was decided
