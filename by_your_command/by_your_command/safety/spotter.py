@@ -2,14 +2,14 @@
 
 Mic audio is cut into short utterances by level (segmenter.py) and each one is decoded as it
 comes (recognizer.py: a small language model, with a keyphrase search as second opinion); at its
-end the transcript is judged. Over the robot's voice its residual echo holds that end back: a clean
-stop is decided earlier, at a pause well under the word's level (`Paused`). In echo_gate mode the raw mic holds the robot's voice at full
-level, louder than a user a metre away: while the robot plays (and a second after), the mic goes
-through the aec echo engine and its residual suppressor (audio/echo.py, as the echo_suppressor
-runs them) with the played audio as reference, and only then is it segmented (`cancel_echo`).
-Idle, only the level of each 20 ms frame is computed. The reference itself is spotted too
-(own_voice.py): a stop heard where the robot said a stop-like word is its own voice, and is
-rejected.
+end the transcript is judged. Over the robot's voice its residual echo holds that end back: a
+clean stop is decided earlier, at a pause well under the word's level (`Paused`). In echo_gate
+mode the raw mic holds the robot's voice at full level, louder than a user a metre away: while
+the robot plays (and a second after), the mic goes through the aec echo engine and its residual
+suppressor (audio/echo.py, as the echo_suppressor runs them) with the played audio as reference,
+and only then is it segmented (`cancel_echo`). Idle, only the level of each 20 ms frame is
+computed. The reference itself is spotted too (own_voice.py): a stop heard where the robot said a
+stop-like word is its own voice, and is rejected.
 """
 
 from __future__ import annotations
