@@ -6,6 +6,7 @@ configuration stops the node at start."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -60,6 +61,18 @@ class Room:
             self.probe.spin(0.002)
             while realtime and time.monotonic() < started + (k + BLOCK) / RATE:
                 self.probe.spin(0.002)
+
+
+def wait_for_the_node(
+    probe: Probe, check: Callable[[], None], states: list[String], room: Room, played: bool = False
+) -> None:
+    """Up: its attention state latched, the mic (and with `played`, audio_played) subscribed."""
+
+    def ready() -> bool:
+        heard = room.mic.get_subscription_count() and (not played or room.played.get_subscription_count())
+        return bool(states and heard)
+
+    spin_until(probe, check, ready, timeout=30, what="the VAD node")
 
 
 @pytest.mark.ros
@@ -148,13 +161,7 @@ def test_in_aec_mode_the_spotter_hears_the_raw_mic_beside_audio_filtered(ros_nam
         states = probe.listen(String, "attention_state", LATCHED)
         stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
         room = Room(probe)  # publishes the mic on `audio` only
-        spin_until(
-            probe,
-            check,
-            lambda: states and room.mic.get_subscription_count(),
-            timeout=30,
-            what="the VAD node",
-        )
+        wait_for_the_node(probe, check, states, room)
         room.play(user=said("halt"))
         spin_until(probe, check, lambda: len(stops) == 1, timeout=30, what="the stop")
         assert stops[0].phrase == "halt"
@@ -176,13 +183,7 @@ def test_a_lone_dont_said_over_the_robots_reply_is_a_stop(ros_namespace: str) ->
         commands = probe.listen(String, "response_cmd", RELIABLE)
         speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
         room = Room(probe)
-        spin_until(
-            probe,
-            check,
-            lambda: states and room.mic.get_subscription_count() and room.played.get_subscription_count(),
-            timeout=30,
-            what="the VAD node",
-        )
+        wait_for_the_node(probe, check, states, room, played=True)
         speaking.publish(Bool(data=True))
         reply = at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", RATE), RATE), -16.0)
         user = np.zeros(len(reply), dtype=np.int16)
@@ -203,8 +204,7 @@ def test_the_robot_called_by_name_through_the_node_is_not_stopped(ros_namespace:
         states = probe.listen(String, "attention_state", LATCHED)
         stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
         room = Room(probe)
-        ready = lambda: states and room.mic.get_subscription_count()  # noqa: E731
-        spin_until(probe, check, ready, timeout=30, what="the VAD node")
+        wait_for_the_node(probe, check, states, room)
         for voice in ("en-us-nyc", "en-gb-x-gbcwmd"):
             room.play(user=said("robot", voice), realtime=True)
         room.play(user=said("stop it"), realtime=True)
