@@ -6,11 +6,13 @@ configuration stops the node at start."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
 from audio_io.synthetic_room import ROBOT_REPLY, at_level, espeak, trim_silence
+from audio_io.synthetic_room import Room as EchoRoom
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk, AudioDataUtterance, Interruption, SafetyStop
 from byc_testing import running_process
@@ -39,16 +41,24 @@ class Room:
         self.next_ns = probe.node.get_clock().now().nanoseconds
 
     def play(
-        self, user: Int16Array | None = None, robot: Int16Array | None = None, realtime: bool = False
+        self,
+        user: Int16Array | None = None,
+        robot: Int16Array | None = None,
+        realtime: bool = False,
+        echo: Int16Array | None = None,
+        quiet_after_s: float = 1.0,
     ) -> None:
         """`realtime`: one block per block's duration, as a microphone does (a long reply sent
-        faster than the spotter cancels and decodes it would overflow its bounded queue)."""
+        faster than the spotter cancels and decodes it would overflow its bounded queue). `echo`:
+        the robot as the mic hears it (default: half its level, 120 ms late)."""
         length = max(len(user) if user is not None else 0, len(robot) if robot is not None else 0)
-        mic = np.zeros(length + RATE, dtype=np.int32)
+        mic = np.zeros(length + int(quiet_after_s * RATE), dtype=np.int32)
         if user is not None:
             mic[: len(user)] += user
         delay = int(0.12 * RATE)
-        if robot is not None:
+        if echo is not None:
+            mic[: len(echo)] += echo
+        elif robot is not None:
             mic[delay : delay + len(robot)] += robot // 2
         mic16 = np.clip(mic, -32768, 32767).astype(np.int16)
         started = time.monotonic()
@@ -73,6 +83,24 @@ def wait_for_the_node(
         return bool(states and heard)
 
     spin_until(probe, check, ready, timeout=30, what="the VAD node")
+
+
+@contextmanager
+def the_robot_speaking(
+    ros_namespace: str,
+) -> Iterator[tuple[Probe, Callable[[], None], Room, list[SafetyStop]]]:
+    """The VAD node in gate mode, up, told the robot speaks (its spotter cancels the robot's voice
+    itself): the probe, the node's liveness check, the room and the safety stops heard."""
+    command = node("silero_vad_node", ros_namespace, "input_topic:=audio", "echo_gate:=true")
+    with probe_node(ros_namespace) as probe, running_process(command) as vad:
+        check = alive(vad)
+        states = probe.listen(String, "attention_state", LATCHED)
+        stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
+        speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
+        room = Room(probe)
+        wait_for_the_node(probe, check, states, room, played=True)
+        speaking.publish(Bool(data=True))
+        yield probe, check, room, stops
 
 
 @pytest.mark.ros
@@ -175,16 +203,8 @@ def test_in_aec_mode_the_spotter_hears_the_raw_mic_beside_audio_filtered(ros_nam
 def test_a_lone_dont_said_over_the_robots_reply_is_a_stop(ros_namespace: str) -> None:
     # Over the robot's voice a "stop" whose /s/ is clipped is decoded "don't" (and "Don't!" alone
     # means stop): through the node, with the spotter cancelling the robot's voice itself (gate).
-    command = node("silero_vad_node", ros_namespace, "input_topic:=audio", "echo_gate:=true")
-    with probe_node(ros_namespace) as probe, running_process(command) as vad:
-        check = alive(vad)
-        states = probe.listen(String, "attention_state", LATCHED)
-        stops = probe.listen(SafetyStop, "safety_stop", RELIABLE)
+    with the_robot_speaking(ros_namespace) as (probe, check, room, stops):
         commands = probe.listen(String, "response_cmd", RELIABLE)
-        speaking = probe.node.create_publisher(Bool, "assistant_speaking", LATCHED)
-        room = Room(probe)
-        wait_for_the_node(probe, check, states, room, played=True)
-        speaking.publish(Bool(data=True))
         reply = at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", RATE), RATE), -16.0)
         user = np.zeros(len(reply), dtype=np.int16)
         word = at_level(trim_silence(espeak("Don't!", "en-us", RATE), RATE), -26.0)
@@ -192,6 +212,31 @@ def test_a_lone_dont_said_over_the_robots_reply_is_a_stop(ros_namespace: str) ->
         room.play(user=user, robot=reply, realtime=True)
         spin_until(probe, check, lambda: stops and commands, timeout=30, what="the stop")
         assert [s.phrase for s in stops] == ["don't"] and [c.data for c in commands] == ["stop"]
+
+
+@pytest.mark.ros
+def test_a_stop_over_the_reply_is_decided_at_its_pause_not_after_the_echo(ros_namespace: str) -> None:
+    # The robot's residual echo stays above the floor after the user's word and held the
+    # utterance's end back (bench_safety_stop: +55 ms median, +330 ms p95): a clean stop is decided
+    # at the pause under its level (stop_end_drop_db). Through the node on the real clock, the mic
+    # goes quiet (nothing more published) 150 ms after the word: the stop must come from that.
+    with the_robot_speaking(ros_namespace) as (probe, check, room, stops):
+        reply = at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", RATE), RATE), -16.0)
+        echo = at_level(EchoRoom().echo(reply, RATE), -22.0)  # with the room's reverberation
+        room.play(robot=reply, echo=echo, realtime=True)  # the canceller converges, as on a robot
+        word = at_level(trim_silence(espeak("stop", "en-us", RATE), RATE), -26.0)
+        word_at = int(2.5 * RATE)
+        cut = word_at + len(word) + int(0.15 * RATE)
+        user = np.zeros(cut, dtype=np.int16)
+        user[word_at : word_at + len(word)] = word
+        began = room.next_ns
+        room.play(user=user, robot=reply[:cut], echo=echo[:cut], realtime=True, quiet_after_s=0.0)
+        spin_until(probe, check, lambda: stops, timeout=20, what="the stop, 150 ms of audio after it")
+        assert [s.phrase for s in stops] == ["stop"]
+        word_start = began + word_at * NS // RATE
+        stamped = stops[0].word_end.sec * NS + stops[0].word_end.nanosec
+        # In the word (its closing /p/ is weak: the stamp may be at its vowel), not in the echo.
+        assert word_start < stamped <= word_start + len(word) * NS // RATE
 
 
 @pytest.mark.ros
