@@ -525,8 +525,8 @@ class SileroVadNode(Node):
         spotter = worker.spotter
         return (
             f" safety_stop: stops={self.safety_stops} heard={spotter.heard} own_voice={spotter.own_voice}"
-            f" repeated={spotter.repeated} dropped={worker.dropped} errors={worker.errors}"
-            f" rejected_blocks={self.safety_rejected_blocks}"
+            f" residual_echo={spotter.residual_echo} repeated={spotter.repeated}"
+            f" dropped={worker.dropped} errors={worker.errors} rejected_blocks={self.safety_rejected_blocks}"
         )
 
     def _spoken_wake_stats(self) -> str:

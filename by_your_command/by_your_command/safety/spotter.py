@@ -58,15 +58,21 @@ OWN_VOICE_LOOKAHEAD_NS = 200_000_000
 OWN_VOICE_MAX_WAIT_NS = 500_000_000  # mic time: the reference stalled, decide without it
 KWS_MAX_VOICED_NS = 900_000_000  # a keyphrase hit counts only in an utterance this short: one word
 MIN_VOICED_NS = 150_000_000  # shorter is a click or a scrap of residual echo, not a stop phrase
+# Over the robot's voice a keyphrase hit needs this much voice: after the user's chat over a reply
+# the canceller, disturbed by the double talk, let 160 ms scraps of the robot's voice through,
+# heard "who" with a hit (3 of 130 chat lines stopped the robot). The shortest user stop taken on
+# a hit over a reply lasted 240 ms (a "freeze" heard "read"; bench_safety_stop, four voice sets).
+KWS_MIN_VOICED_OVER_REPLY_NS = 200_000_000
 ECHO_TAIL_NS = NS_PER_S  # keep cancelling this long after the last reference block (room tail)
 # Over the robot's voice in gate mode (bench_safety_stop, tuned voices): 90.0 % of stops at 6 dB,
 # 96.2 % at 3 dB, no own-voice false stops either way; a gentler band floor (-10 dB) lost stops.
 ECHO_GUARD_MARGIN_DB = 3.0
 REFERENCE_MAX_UTTERANCE_MS = 5000  # the robot's sentences: its stop-like words need their times
-# A keyphrase hit on one word stands for a clipped stop, but not in an utterance the echo canceller
-# took this much out of: that is the robot's residual echo (en-gb "I heard you" decoded "what" with
-# a hit stopped the robot: 25-30 dB under the mic; users' stops over a reply came out 5-9 dB under
-# it, bench_safety_stop). A whole stop phrase stands whatever the canceller took.
+# An utterance the echo canceller took this much out of is the robot's residual echo, whatever it
+# was heard as: en-gb "I heard you" decoded "what" with a keyphrase hit, 25-30 dB under the mic,
+# and early in a reply residual echo decoded "halt" and "stop" (chat over a reply) stopped the
+# robot. Users' stops over a reply came out 5-9 dB under the mic; none of the 330 over a reply in
+# bench_safety_stop (four voice sets) was this far under.
 ECHO_REMOVED_DB = 15.0
 LEVELS_KEPT_NS = 4 * NS_PER_S  # mic and output levels remembered: longer than any stop utterance
 
@@ -138,6 +144,7 @@ class StopSpotter:
         self.heard = 0  # utterances decoded
         self.stops = 0
         self.own_voice = 0  # stops rejected as the robot's own voice
+        self.residual_echo = 0  # stops rejected as what the canceller left of it
         self.repeated = 0  # stops within the refractory window of the last one
         self.last_text = ""
 
@@ -244,7 +251,8 @@ class StopSpotter:
             self._mic_start_ns = event.start_ns
             self._utterance = []
         elif isinstance(event, Paused):
-            return self._clean_stop_so_far(event)
+            # Once decided, the utterance's later pauses ("stop | stop") are the same stop.
+            return None if self._decided else self._clean_stop_so_far(event)
         elif isinstance(event, Audio):
             recognizer.feed(event.pcm)
             self._keywords.feed(event.pcm)
@@ -260,14 +268,14 @@ class StopSpotter:
             voiced = event.voice_end_ns - event.voice_start_ns
             if voiced < MIN_VOICED_NS or self._decided:
                 return None
-            short = voiced <= KWS_MAX_VOICED_NS
-            if self.matcher.is_stop(heard.text) or (
+            keyword_stands = (
                 keyword
-                and short
+                and voiced <= KWS_MAX_VOICED_NS
+                and (voiced >= KWS_MIN_VOICED_OVER_REPLY_NS or not self._cancelling)
                 and self.matcher.may_be_stop(heard.text)
-                and not self._mostly_echo(event.voice_start_ns, event.voice_end_ns)
-            ):
-                return Detection(heard.text, event.voice_start_ns, event.voice_end_ns)
+            )
+            if self.matcher.is_stop(heard.text) or keyword_stands:
+                return self._unless_echo(Detection(heard.text, event.voice_start_ns, event.voice_end_ns))
         return None
 
     def _clean_stop_so_far(self, pause: Paused) -> Detection | None:
@@ -290,9 +298,17 @@ class StopSpotter:
         )
         if not self.matcher.is_clean_stop(said):
             return None
-        self._decided = True
         self.last_text = said
-        return Detection(said, pause.voice_start_ns, pause.voice_end_ns)
+        detection = self._unless_echo(Detection(said, pause.voice_start_ns, pause.voice_end_ns))
+        self._decided = detection is not None
+        return detection
+
+    def _unless_echo(self, detection: Detection) -> Detection | None:
+        if not self._mostly_echo(detection.voice_start_ns, detection.voice_end_ns):
+            return detection
+        self.residual_echo += 1
+        log.info("stop heard (%r) rejected: the robot's residual echo", detection.text)
+        return None
 
     def _mostly_echo(self, start_ns: int, end_ns: int) -> bool:
         """The echo canceller took ECHO_REMOVED_DB or more out of the mic over [start, end)."""

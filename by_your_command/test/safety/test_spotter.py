@@ -11,6 +11,7 @@ from audio_io.synthetic_room import ROBOT_REPLY, Room, at_level, espeak, trim_si
 from by_your_command.audio.pcm import Int16Array
 from by_your_command.safety.config import StopConfig
 from by_your_command.safety.recognizer import StopMatcher, StopRecognizer, with_accents
+from by_your_command.safety.segmenter import LevelSegmenter
 from by_your_command.safety.spotter import Detection, StopSpotter
 from by_your_command.vad.config import VadConfig
 
@@ -275,3 +276,49 @@ def test_a_stop_over_the_reply_is_decided_at_its_pause_not_after_the_echo(
         start += len(mic_pcm) // BLOCK * BLOCK * NS // RATE
     assert len(decided) == 1 and decided[0][0] == 1
     assert decided[0][1] < 0.15 * RATE  # audio after the word's end, when the stop was decided
+
+
+def judged(
+    spotter: StopSpotter, pcm: Int16Array, cancelling: bool, removed_db: float = 0.0
+) -> list[Detection]:
+    """`pcm` as the spotter's echo canceller put it out, the canceller having taken `removed_db`
+    out of the mic (its levels as the spotter records them), segmented and judged as in `mic`."""
+    config = spotter.config
+    segmenter = LevelSegmenter(config.min_level_dbfs, config.onset_db, config.end_silence_ms, 5000)
+    spotter._cancelling = cancelling
+    found = []
+    for k in range(0, len(pcm) - BLOCK + 1, BLOCK):
+        block, stamp = pcm[k : k + BLOCK], T0 + k * NS // RATE
+        if cancelling:
+            spotter._output_levels.add(block, RATE, stamp)
+            spotter._mic_levels.add((block * 10 ** (removed_db / 20)).astype(np.int16), RATE, stamp)
+        for event in segmenter.push(block, stamp):
+            detection = spotter._mic_event(event)
+            found += [detection] if detection is not None else []
+    return found
+
+
+@pytest.mark.unit
+def test_a_stop_phrase_the_canceller_took_most_of_is_the_robots_residual_echo(
+    spotter_config: StopConfig,
+) -> None:
+    # Early in a reply residual echo was heard "halt" and stopped the robot; users' stops over a
+    # reply come out 5-9 dB under the mic, the robot's residual 15 dB and more.
+    halt = at_level(said("halt"), -40.0)
+    spotter = StopSpotter(spotter_config, cancel_echo=False)
+    assert judged(spotter, halt, cancelling=True, removed_db=25.0) == []
+    assert spotter.residual_echo == 1
+    voice_over = StopSpotter(spotter_config, cancel_echo=False)
+    assert [d.text for d in judged(voice_over, halt, cancelling=True, removed_db=8.0)] == ["halt"]
+
+
+@pytest.mark.unit
+def test_over_a_reply_a_keyphrase_hit_on_a_scrap_is_no_stop(spotter_config: StopConfig) -> None:
+    # 180 ms of "hot": a lone word with a keyphrase hit, which stands for a clipped stop in a
+    # quiet room. Over a reply, scraps this short were the robot's voice let through by a
+    # canceller disturbed by double talk ("who", 160 ms, stopped the robot after chat).
+    quiet = np.zeros(RATE // 2, dtype=np.int16)
+    scrap = trim_silence(espeak("hot", "en-us", RATE), RATE)[: int(0.18 * RATE)]
+    hot = np.concatenate([quiet, at_level(scrap, -26.0), quiet])
+    assert [d.text for d in judged(StopSpotter(spotter_config, cancel_echo=False), hot, False)] == ["hot"]
+    assert judged(StopSpotter(spotter_config, cancel_echo=False), hot, cancelling=True) == []
