@@ -68,11 +68,12 @@ ECHO_TAIL_NS = NS_PER_S  # keep cancelling this long after the last reference bl
 # 96.2 % at 3 dB, no own-voice false stops either way; a gentler band floor (-10 dB) lost stops.
 ECHO_GUARD_MARGIN_DB = 3.0
 REFERENCE_MAX_UTTERANCE_MS = 5000  # the robot's sentences: its stop-like words need their times
-# An utterance the echo canceller took this much out of is the robot's residual echo, whatever it
-# was heard as: en-gb "I heard you" decoded "what" with a keyphrase hit, 25-30 dB under the mic,
-# and early in a reply residual echo decoded "halt" and "stop" (chat over a reply) stopped the
-# robot. Users' stops over a reply came out 5-9 dB under the mic; none of the 330 over a reply in
-# bench_safety_stop (four voice sets) was this far under.
+# A keyphrase hit on one word stands for a clipped stop, but not in an utterance the echo canceller
+# took this much out of: that is the robot's residual echo (en-gb "I heard you" decoded "what" with
+# a hit stopped the robot: 25-30 dB under the mic; users' stops over a reply came out 5-9 dB under
+# it, bench_safety_stop). A whole stop phrase stands whatever the canceller took: a user 15 dB
+# under a loud robot's echo at the mic must still be heard (residual echo heard "halt" early in a
+# reply stopped the robot in 1 of 130 chat lines over a reply: the safe way to be wrong).
 ECHO_REMOVED_DB = 15.0
 LEVELS_KEPT_NS = 4 * NS_PER_S  # mic and output levels remembered: longer than any stop utterance
 
@@ -144,7 +145,7 @@ class StopSpotter:
         self.heard = 0  # utterances decoded
         self.stops = 0
         self.own_voice = 0  # stops rejected as the robot's own voice
-        self.residual_echo = 0  # stops rejected as what the canceller left of it
+        self.residual_echo = 0  # keyphrase hits rejected as what the canceller left of the robot
         self.repeated = 0  # stops within the refractory window of the last one
         self.last_text = ""
 
@@ -268,14 +269,16 @@ class StopSpotter:
             voiced = event.voice_end_ns - event.voice_start_ns
             if voiced < MIN_VOICED_NS or self._decided:
                 return None
-            keyword_stands = (
+            detection = Detection(heard.text, event.voice_start_ns, event.voice_end_ns)
+            if self.matcher.is_stop(heard.text):
+                return detection
+            if (
                 keyword
                 and voiced <= KWS_MAX_VOICED_NS
                 and (voiced >= KWS_MIN_VOICED_OVER_REPLY_NS or not self._cancelling)
                 and self.matcher.may_be_stop(heard.text)
-            )
-            if self.matcher.is_stop(heard.text) or keyword_stands:
-                return self._unless_echo(Detection(heard.text, event.voice_start_ns, event.voice_end_ns))
+            ):
+                return self._unless_echo(detection)
         return None
 
     def _clean_stop_so_far(self, pause: Paused) -> Detection | None:
@@ -298,12 +301,12 @@ class StopSpotter:
         )
         if not self.matcher.is_clean_stop(said):
             return None
+        self._decided = True
         self.last_text = said
-        detection = self._unless_echo(Detection(said, pause.voice_start_ns, pause.voice_end_ns))
-        self._decided = detection is not None
-        return detection
+        return Detection(said, pause.voice_start_ns, pause.voice_end_ns)
 
     def _unless_echo(self, detection: Detection) -> Detection | None:
+        """A keyphrase rescue, unless it is the robot's residual echo."""
         if not self._mostly_echo(detection.voice_start_ns, detection.voice_end_ns):
             return detection
         self.residual_echo += 1
