@@ -278,7 +278,10 @@ class StopSpotter:
                 and (voiced >= KWS_MIN_VOICED_OVER_REPLY_NS or not self._cancelling)
                 and self.matcher.may_be_stop(heard.text)
             ):
-                return self._unless_echo(detection)
+                if not self._mostly_echo(event.voice_start_ns, event.voice_end_ns):
+                    return detection
+                self.residual_echo += 1
+                log.info("stop heard (%r) rejected: the robot's residual echo", heard.text)
         return None
 
     def _clean_stop_so_far(self, pause: Paused) -> Detection | None:
@@ -304,14 +307,6 @@ class StopSpotter:
         self._decided = True
         self.last_text = said
         return Detection(said, pause.voice_start_ns, pause.voice_end_ns)
-
-    def _unless_echo(self, detection: Detection) -> Detection | None:
-        """A keyphrase rescue, unless it is the robot's residual echo."""
-        if not self._mostly_echo(detection.voice_start_ns, detection.voice_end_ns):
-            return detection
-        self.residual_echo += 1
-        log.info("stop heard (%r) rejected: the robot's residual echo", detection.text)
-        return None
 
     def _mostly_echo(self, start_ns: int, end_ns: int) -> bool:
         """The echo canceller took ECHO_REMOVED_DB or more out of the mic over [start, end)."""

@@ -250,7 +250,7 @@ def test_the_spotter_tells_its_residual_echo_from_a_voice_over_it(spotter_config
 
 
 @pytest.mark.unit
-@pytest.mark.parametrize("word", ["stop", "freeze"])
+@pytest.mark.parametrize("word", ["stop", "freeze", "stop stop"])
 def test_a_stop_over_the_reply_is_decided_at_its_pause_not_after_the_echo(
     spotter_config: StopConfig, word: str
 ) -> None:
@@ -276,6 +276,7 @@ def test_a_stop_over_the_reply_is_decided_at_its_pause_not_after_the_echo(
         start += len(mic_pcm) // BLOCK * BLOCK * NS // RATE
     assert len(decided) == 1 and decided[0][0] == 1
     assert decided[0][1] < 0.15 * RATE  # audio after the word's end, when the stop was decided
+    assert spotter.repeated == 0  # "stop | stop": one stop, decided at its first pause
 
 
 def judged(
