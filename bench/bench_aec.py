@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import statistics
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -24,14 +25,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "by_your_command" /
 from audio_io.synthetic_room import (  # type: ignore[import-not-found]  # noqa: E402
     Conversation,
     Room,
+    at_level,
     conversation,
     energy_db,
     recorded_speech,
     speech_like,
 )
 
+from by_your_command.audio import echo_memory  # noqa: E402
 from by_your_command.audio.echo import EchoConfig, EchoController  # noqa: E402
-from by_your_command.audio.pcm import Int16Array, StreamResampler, float_to_int16, resample  # noqa: E402
+from by_your_command.audio.pcm import (  # noqa: E402
+    Int16Array,
+    StreamResampler,
+    float_to_int16,
+    resample,
+    rms_dbfs,
+)
 from by_your_command.vad.config import VadConfig  # noqa: E402
 from by_your_command.vad.detector import VoiceDetector  # noqa: E402
 from by_your_command.vad.model import SileroModel  # noqa: E402
@@ -41,6 +50,7 @@ RATE = 16000
 BLOCK = 512
 SECONDS = 10.0
 CONVERGED_FROM_S = 3.0
+LEARN_S = 30.0  # double talk, remembered path: the robot's earlier speech in the room
 T0 = 1_700_000_000 * 1_000_000_000
 
 
@@ -230,6 +240,9 @@ CONFIGS = {
     "webrtc_guard_on": EchoConfig(mode="aec", aec_engine="webrtc", echo_guard=True),
     "linear_new": EchoConfig(mode="aec", aec_engine="linear", echo_guard=True),
 }
+# Double talk only: linear_new started from the echo path it remembered of the room (a robot that
+# spoke there before: LEARN_S of other speech), not new as in every other row.
+REMEMBERED = "linear_remembered"
 
 
 @dataclass
@@ -241,8 +254,18 @@ class Listened:
     starts: list[float]
 
 
-def listen(talk: Conversation, config: EchoConfig, model: SileroModel | None) -> Listened:
+def listen(
+    talk: Conversation,
+    config: EchoConfig,
+    model: SileroModel | None,
+    start_from: Path | None = None,
+    keep_to: Path | None = None,
+) -> Listened:
+    """`start_from`: a remembered echo path to start from; `keep_to`: remember the one learned."""
     echo = EchoController(config)
+    if start_from is not None:
+        restored = echo_memory.restore(echo, start_from)
+        assert restored.ok and "starting from" in restored.message, restored.message
     detector = None
     if model is not None:
         model.reset()
@@ -263,6 +286,9 @@ def listen(talk: Conversation, config: EchoConfig, model: SileroModel | None) ->
             for event in detector.process(block.pcm, RATE, 1, block.start_ns):
                 if isinstance(event, VoiceActivity) and event.active:
                     starts.append((event.time_ns - T0) / 1e9)
+    if keep_to is not None:
+        kept = echo_memory.keep(echo, keep_to)
+        assert kept is not None and kept.ok, kept
     return Listened(output, starts)
 
 
@@ -366,6 +392,16 @@ def scenes(held_out: bool) -> list[Scene]:
     ]
 
 
+def remember_room(scene: Scene, config: EchoConfig, file: Path) -> None:
+    """The echo path a robot keeps after LEARN_S of other speech in the scene's room (the same
+    room response, the same echo level): what it starts the scene from when the path is remembered."""
+    played = at_level(recorded_speech(LEARN_S, RATE), -18.0)
+    echo = scene.room.echo(played, RATE).astype(np.float64)
+    echo *= 10 ** ((scene.echo_dbfs - rms_dbfs(float_to_int16(echo / 32768.0))) / 20)
+    earlier = Conversation(played, float_to_int16(echo / 32768.0), [], RATE)
+    listen(earlier, config, None, keep_to=file)
+
+
 def talk_of(scene: Scene, with_user: bool, echo: bool = True) -> Conversation:
     return conversation(
         RATE,
@@ -406,12 +442,17 @@ def bench_double_talk(held_out_too: bool = True) -> list[tuple[str, str, str]]:
       robot speaking) and Silero utterance starts per minute of robot speech."""
     model = SileroModel()
     rows = []
+    workspace = tempfile.TemporaryDirectory(prefix="bench_aec_")  # the remembered echo paths
     for held_out in (False, True) if held_out_too else (False,):
         label = "held-out" if held_out else "tuned"
         chosen = scenes(held_out)
         talks = [(talk_of(s, True), talk_of(s, True, echo=False), talk_of(s, False)) for s in chosen]
         quiet_runs: dict[tuple[str, int], Listened] = {}  # nothing played: the guard has no say
-        for name, config in CONFIGS.items():
+        memory = Path(workspace.name) / label
+        memory.mkdir()
+        for index, scene in enumerate(chosen):
+            remember_room(scene, CONFIGS["linear_new"], memory / f"{index}.npz")
+        for name, config in {**CONFIGS, REMEMBERED: CONFIGS["linear_new"]}.items():
             delays: list[float] = []
             quiet_delays: list[float] = []
             correlations: list[float] = []
@@ -421,7 +462,8 @@ def bench_double_talk(held_out_too: bool = True) -> list[tuple[str, str, str]]:
             for index, (talk, alone, single) in enumerate(talks):
                 scene_delays: list[float | None] = []
                 scene_correlations: list[float] = []
-                heard = listen(talk, config, model)
+                remembered = memory / f"{index}.npz" if name == REMEMBERED else None
+                heard = listen(talk, config, model, start_from=remembered)
                 key = (config.aec_engine, index)
                 if key not in quiet_runs:
                     quiet_runs[key] = listen(
@@ -442,7 +484,7 @@ def bench_double_talk(held_out_too: bool = True) -> list[tuple[str, str, str]]:
                     span = slice(int(begin * RATE), int(min(end, robot_end) * RATE))
                     scene_correlations.append(pearson(heard.output[span], quiet.output[span]))
                 correlations += scene_correlations
-                robot = listen(single, config, model)
+                robot = listen(single, config, model, start_from=remembered)
                 lo, hi = int(CONVERGED_FROM_S * RATE), int(robot_end * RATE)
                 mic = single.mic[lo:hi]
                 erles.append(energy_db(mic) - energy_db(np.rint(robot.output[lo:hi]).astype(np.int16)))
@@ -491,6 +533,7 @@ def bench_double_talk(held_out_too: bool = True) -> list[tuple[str, str, str]]:
                     f"{per_minute:.1f} false starts/min",
                 )
             )
+    workspace.cleanup()
     return rows
 
 

@@ -479,8 +479,11 @@ def graph_nodes(mode: str) -> tuple[ExtraNode, ...]:
         (f"input_topic:={vad_input}", "echo_gate:=false", "stop_spotter:=false"),
         r"VAD ready on",
     )
-    if mode == "aec":
-        return (ExtraNode("echo_suppressor", ("mode:=aec",), r"echo control ready"), vad)
+    if mode == "aec":  # each run starts its canceller new, as before the echo path was remembered
+        suppressor = ExtraNode(
+            "echo_suppressor", ("mode:=aec", "aec_echo_memory:=none"), r"echo control ready"
+        )
+        return (suppressor, vad)
     return (vad,)
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.signal import butter, sosfilt
 
 from by_your_command.audio.echo_gate import EchoGate
-from by_your_command.audio.echo_linear import LinearAec
+from by_your_command.audio.echo_linear import ComplexArray, LinearAec
 from by_your_command.audio.pcm import Int16Array, StampedPcm, StampedResampler, float_to_int16, to_mono
 
 if TYPE_CHECKING:
@@ -75,6 +75,14 @@ class EchoConfig:
     aec_double_talk_margin_db: float = field(
         default=6.0,
         metadata={"help": "aec linear: output this far above the echo it leaves = someone talks: freeze"},
+    )
+    aec_echo_memory: str = field(
+        default="auto",
+        metadata={
+            "help": "aec linear: file that keeps the learned echo path across restarts, so the first "
+            "reply is cancelled from its start: auto ($XDG_STATE_HOME/by_your_command/echo_path/"
+            "<node>.npz), none, or a path"
+        },
     )
     aec_stream_delay_ms: int = field(
         default=0,
@@ -139,6 +147,8 @@ class EchoConfig:
             raise ValueError(f"aec mode needs sample_rate in {APM_RATES}, got {self.sample_rate}")
         if self.gate_tail_ms < 0:
             raise ValueError(f"gate_tail_ms must be >= 0, got {self.gate_tail_ms}")
+        if not self.aec_echo_memory.strip():
+            raise ValueError("aec_echo_memory must be auto, none or a file path, got an empty string")
         if self.aec_stream_delay_ms < 0:
             raise ValueError(f"aec_stream_delay_ms must be >= 0, got {self.aec_stream_delay_ms}")
         if self.aec_reference_wait_ms < 0:
@@ -190,6 +200,7 @@ class EchoStats:
     guard_frames_muted: int = 0  # aec frames taken down whole as residual echo (guard / suppressor)
     double_talk_frames: int = 0  # aec linear: frames the filter did not adapt on (someone talked)
     path_changes: int = 0  # aec linear: echo path changes relearned (head turned, mic stamps shifted)
+    remembered_dropped: int = 0  # aec linear: a remembered echo path that did not fit the room
 
 
 class ReferenceTimeline:
@@ -443,6 +454,22 @@ class EchoController:
         return self._reference
 
     @property
+    def echo_path_shape(self) -> tuple[int, int] | None:
+        """(partitions, bins) of the linear canceller's echo path; None without one (gate,
+        external, webrtc): nothing to remember."""
+        return self._linear.canceller.coefficients_shape if self._linear is not None else None
+
+    def echo_path(self) -> ComplexArray | None:
+        """The echo path learned so far, once worth remembering (audio/echo_memory.py)."""
+        return self._linear.echo_path() if self._linear is not None else None
+
+    def start_from_echo_path(self, path: ComplexArray) -> None:
+        """Start cancelling with an echo path learned before (raises ValueError if it does not fit)."""
+        if self._linear is None:
+            raise ValueError("only the linear aec engine has an echo path to start from")
+        self._linear.start_from(path)
+
+    @property
     def aec_delay_samples(self) -> int:
         return self._aec.delay_samples if self._aec is not None else 0
 
@@ -563,6 +590,7 @@ class EchoController:
         if self._linear is not None:
             self.stats.double_talk_frames = self._linear.canceller.stats.double_talk_blocks
             self.stats.path_changes = self._linear.canceller.stats.path_changes
+            self.stats.remembered_dropped = self._linear.canceller.stats.remembered_dropped
             if self._linear.suppressor is not None:
                 self.stats.guard_frames_muted = self._linear.suppressor.frames_muted
         self._pending = self._pending[ready:].copy()

@@ -4,12 +4,14 @@ or passed through (external). Logic lives in audio/echo.py."""
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk
 from rclpy.node import Node
 from std_msgs.msg import Bool
 
+from by_your_command.audio import echo_memory
 from by_your_command.audio.echo import Block, EchoConfig, EchoController, EchoMode
 from by_your_command.audio.pcm import check_sample_rate, to_mono
 from by_your_command.nodes._audio_msgs import make_audio_chunk, pcm_of
@@ -41,6 +43,13 @@ class EchoSuppressorNode(Node):
             self.create_subscription(AudioChunk, "audio_played", self._on_played, AUDIO_IN)
         self._reported: tuple[int, ...] = ()
         self.create_timer(STATS_PERIOD_S, self._report)
+        self._memory: Path | None = None
+        if self.echo.echo_path_shape is not None:
+            self._memory = echo_memory.memory_file(
+                self.config.aec_echo_memory, self.get_fully_qualified_name()
+            )
+        if self._memory is not None:
+            self._log(echo_memory.restore(self.echo, self._memory))
         aec = (
             f" aec_engine={self.config.aec_engine} "
             f"aec_delay={self.echo.aec_delay_samples * 1000 / self.sample_rate:.1f}ms "
@@ -59,6 +68,24 @@ class EchoSuppressorNode(Node):
     def _on_speaking(self, msg: Bool) -> None:
         self.echo.set_assistant_speaking(bool(msg.data), self._now_ns())
         self._publish(self.echo.drain())
+        if not msg.data:
+            self._remember()
+
+    def _remember(self) -> None:
+        """Keep the echo path learned so far (at the end of each reply and at shutdown)."""
+        if self._memory is not None:
+            outcome = echo_memory.keep(self.echo, self._memory)
+            if outcome is not None and not outcome.ok:
+                self._log(outcome)
+
+    def _log(self, outcome: echo_memory.Outcome) -> None:
+        if outcome.ok:
+            self.get_logger().info(outcome.message)
+        else:
+            self.get_logger().warning(outcome.message, throttle_duration_sec=60.0)
+
+    def before_shutdown(self) -> None:
+        self._remember()
 
     def _on_played(self, msg: AudioChunk) -> None:
         try:
@@ -106,7 +133,8 @@ class EchoSuppressorNode(Node):
                 f"rejected={stats.blocks_rejected} reference_rejected={stats.reference_rejected} "
                 f"aec_frames={stats.aec_frames} unreferenced={stats.aec_frames_unreferenced} "
                 f"guard_muted={stats.guard_frames_muted} double_talk={stats.double_talk_frames} "
-                f"path_changes={stats.path_changes} mic_resyncs={stats.mic_resyncs} "
+                f"path_changes={stats.path_changes} remembered_dropped={stats.remembered_dropped} "
+                f"mic_resyncs={stats.mic_resyncs} "
                 f"reference_restarts={stats.reference_restarts} "
                 f"late_reference_samples={stats.reference_samples_late}"
             )

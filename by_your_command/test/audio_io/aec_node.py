@@ -9,6 +9,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
+from audio_io.synthetic_room import energy_db
 from builtin_interfaces.msg import Time
 from by_your_command_msgs.msg import AudioChunk
 from byc_testing import python_module, running_process, wait_for
@@ -16,7 +17,8 @@ from rclpy.publisher import Publisher
 from ros_probe import Probe, probe_node
 from std_msgs.msg import Bool
 
-from by_your_command.nodes._audio_msgs import make_audio_chunk
+from by_your_command.audio.pcm import Int16Array
+from by_your_command.nodes._audio_msgs import make_audio_chunk, pcm_of
 from by_your_command.nodes._qos import LATCHED, STREAM
 
 RATE = 16000
@@ -52,6 +54,19 @@ class AecNode:
         assert process.poll() is None, process.stdout.read() if process.stdout else "node died"
         self.probe.spin(0.002)
         return any(stamp_ns(m.header.stamp) + samples_ns(len(m.data)) >= time_ns for m in self.out[-4:])
+
+    def send(self, pcm: Int16Array, start_ns: int, reference: Int16Array | None) -> None:
+        """One mic block, then what played meanwhile (the worst order), in lockstep: the output
+        must reach two blocks back before the next (a lost best-effort block is resynchronised
+        on the next one)."""
+        self.audio.publish(make_audio_chunk(pcm, RATE, 1, to_stamp(start_ns)))
+        if reference is not None:
+            self.played.publish(make_audio_chunk(reference, RATE, 1, to_stamp(start_ns), "resp"))
+        wait_for(
+            lambda: self.covered_until(start_ns - samples_ns(2 * BLOCK)),
+            timeout=5,
+            what=f"filtered audio up to {(start_ns - T0) / NS_PER_S:.3f} s",
+        )
 
     def wait_heard(self) -> None:
         """Until the node demonstrably hears us (the first best-effort messages after discovery may
@@ -95,3 +110,29 @@ def aec_node(namespace: str, *parameters: str) -> Iterator[AecNode]:
             what="echo_suppressor (aec) and us to discover each other",
         )
         yield node
+
+
+def reduction_db(mic: Int16Array, out: list[AudioChunk], start_ns: int, lo: int, hi: int) -> float:
+    """How far the output is below the mic over samples [lo, hi) of a reply that started at
+    `start_ns`: the median over its 32 ms blocks where the echo sounds (output laid out by its
+    stamps). A median: a reference block lost on the best-effort topic, or later than the mic's
+    wait, leaves its block uncancelled, and over seconds of energy that one block alone reads
+    21 dB (seen on a loaded machine)."""
+    heard = np.zeros(hi - lo, dtype=np.int16)
+    covered = np.zeros(hi - lo, dtype=bool)
+    for msg in out:
+        at = round((stamp_ns(msg.header.stamp) - start_ns) * RATE / NS_PER_S) - lo
+        pcm = pcm_of(msg)
+        first, last = max(at, 0), min(at + len(pcm), hi - lo)
+        if last > first:
+            heard[first:last] = pcm[first - at : last - at]
+            covered[first:last] = True
+    assert covered.mean() > 0.8, "output missing for the reply"
+    reductions = []
+    loudest = max(energy_db(mic[k : k + BLOCK]) for k in range(lo, hi, BLOCK))
+    for k in range(0, hi - lo - BLOCK + 1, BLOCK):
+        sounding = energy_db(mic[lo + k : lo + k + BLOCK]) > loudest - 30.0
+        if sounding and covered[k : k + BLOCK].all():
+            reductions.append(energy_db(mic[lo + k : lo + k + BLOCK]) - energy_db(heard[k : k + BLOCK]))
+    assert len(reductions) > 10, "too little echo to judge"
+    return float(np.median(reductions))
