@@ -17,6 +17,8 @@ interleaved in time order). Scenarios:
   chat        the user's chat with stop-like words ("don't stop believing"): false stops, in a quiet
               room and over a reply (gate, aec)
   lone_words  everyday words said alone in a quiet room ("robot", "what", "thanks"): false stops
+  first_reply (--first-reply, on its own) a stop 1 or 2 s into the first reply after a start: a new
+              spotter, one started from what an earlier one's canceller learned (stop_echo_memory)
 
 Each mode is one robot listening for a while: the spotter (and in aec_filtered mode the
 echo_suppressor's controller) is kept across trials on one timeline, so AEC3 and its echo guard
@@ -51,6 +53,7 @@ sys.path.insert(0, str(ROOT / "by_your_command" / "test"))
 
 from audio_io.synthetic_room import Room, at_level, trim_silence  # type: ignore[import-not-found]  # noqa: E402
 
+from by_your_command.audio import echo_memory  # noqa: E402
 from by_your_command.audio.echo import EchoConfig, EchoController  # noqa: E402
 from by_your_command.audio.pcm import Int16Array, float_to_int16, read_wav, resample, to_mono  # noqa: E402
 from by_your_command.safety.config import StopConfig  # noqa: E402
@@ -356,6 +359,46 @@ def stops_heard(
     return stopped
 
 
+def first_reply(config: StopConfig) -> None:
+    """A stop 1 or 2 s into the first reply after the spotter starts (gate mode, held-out voices):
+    a new spotter, one whose canceller starts from what an earlier one learned of the room (the
+    node keeps it: stop_echo_memory; learned here over four other replies, kept and restored
+    through the file), and, as the baseline, one that has been listening (the scenarios above)."""
+    earlier = Stream("gate", config)
+    for index in range(4):
+        earlier.play(None, speak(REPLY_TEMPLATES[index], ROBOT_VOICES[index], 170))
+    listening = speak(REPLY_TEMPLATES[7] + " " + OVER_REPLY, ROBOT_VOICES[0], 170)
+    with tempfile.TemporaryDirectory() as tmp:
+        kept = Path(tmp) / "stop_spotter.npz"
+        assert earlier.spotter.echo_controller is not None
+        assert echo_memory.keep(earlier.spotter.echo_controller, kept) is not None
+        for at in (1.0, 2.0):
+            heard = {"new": 0, "remembered": 0, "listening": 0}
+            total = 0
+            for v_index, voice in enumerate(HELD_OUT):
+                for p_index, phrase in enumerate(STOPS):
+                    reply = speak(OVER_REPLY, ROBOT_VOICES[(v_index + p_index) % len(ROBOT_VOICES)], 170)
+                    total += 1
+                    for start in heard:
+                        stream = Stream("gate", config)
+                        if start == "remembered":
+                            assert stream.spotter.echo_controller is not None
+                            restored = echo_memory.restore(stream.spotter.echo_controller, kept)
+                            assert "starting from" in restored.message, restored.message
+                        elif start == "listening":
+                            stream.warm_up(listening)
+                        found, (word_start, word_end) = stream.play(speak(phrase, voice, 170), reply, at)
+                        heard[start] += any(
+                            f.voice_start_ns < word_end and f.voice_end_ns > word_start for f in found
+                        )
+            print(
+                f"first reply after a start, stop {at:.0f} s in (held-out): "
+                + ", ".join(f"{start} {pct(count, total)}" for start, count in heard.items()),
+                flush=True,
+            )
+            emit("first_reply_detected", at_s=at, total=total, **heard)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -370,8 +413,16 @@ def main() -> int:
         "--more-voices", action="store_true", help="detection on the second and third held-out sets too"
     )
     parser.add_argument("--sets", default="", help="only these voice sets (e.g. held_out_3)")
+    parser.add_argument(
+        "--first-reply",
+        action="store_true",
+        help="only: stops early in the first reply after a start, new spotter vs remembered canceller",
+    )
     args = parser.parse_args()
     config = StopConfig()
+    if args.first_reply:
+        first_reply(config)
+        return 0
     rates = [150, 185]
     sets = {"tuned": TUNED, "held_out": HELD_OUT}
     if args.quick:

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.signal import butter, sosfilt
 
 from by_your_command.audio.echo_gate import EchoGate
-from by_your_command.audio.echo_linear import ComplexArray, LinearAec
+from by_your_command.audio.echo_linear import LearnedEcho, LinearAec
 from by_your_command.audio.pcm import Int16Array, StampedPcm, StampedResampler, float_to_int16, to_mono
 
 if TYPE_CHECKING:
@@ -201,6 +201,7 @@ class EchoStats:
     double_talk_frames: int = 0  # aec linear: frames the filter did not adapt on (someone talked)
     path_changes: int = 0  # aec linear: echo path changes relearned (head turned, mic stamps shifted)
     remembered_dropped: int = 0  # aec linear: a remembered echo path that did not fit the room
+    remembered_relearned: int = 0  # aec linear: a remembered one whose room changed: relearning it
 
 
 class ReferenceTimeline:
@@ -459,15 +460,15 @@ class EchoController:
         external, webrtc): nothing to remember."""
         return self._linear.canceller.coefficients_shape if self._linear is not None else None
 
-    def echo_path(self) -> ComplexArray | None:
-        """The echo path learned so far, once worth remembering (audio/echo_memory.py)."""
-        return self._linear.echo_path() if self._linear is not None else None
+    def learned_echo(self) -> LearnedEcho | None:
+        """What the linear canceller learned of the room, once worth remembering (echo_memory)."""
+        return self._linear.learned() if self._linear is not None else None
 
-    def start_from_echo_path(self, path: ComplexArray) -> None:
-        """Start cancelling with an echo path learned before (raises ValueError if it does not fit)."""
+    def start_from_learned(self, learned: LearnedEcho) -> None:
+        """Start cancelling where a canceller was before (raises ValueError if it does not fit)."""
         if self._linear is None:
             raise ValueError("only the linear aec engine has an echo path to start from")
-        self._linear.start_from(path)
+        self._linear.start_from(learned)
 
     @property
     def aec_delay_samples(self) -> int:
@@ -591,6 +592,7 @@ class EchoController:
             self.stats.double_talk_frames = self._linear.canceller.stats.double_talk_blocks
             self.stats.path_changes = self._linear.canceller.stats.path_changes
             self.stats.remembered_dropped = self._linear.canceller.stats.remembered_dropped
+            self.stats.remembered_relearned = self._linear.canceller.stats.remembered_relearned
             if self._linear.suppressor is not None:
                 self.stats.guard_frames_muted = self._linear.suppressor.frames_muted
         self._pending = self._pending[ready:].copy()

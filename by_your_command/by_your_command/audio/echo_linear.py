@@ -73,10 +73,12 @@ USER_HANGOVER_BLOCKS = 10  # after the user was evident, blocks not muted whole 
 ECHO_FLOOR = 1e-8  # echo estimate power per sample (-80 dBFS) below which a band is not learned
 INITIAL_UNCERTAINTY = 0.006  # Kalman: coefficient variance per partition and bin before learning
 FORGET = 0.999  # Kalman: coefficients decay this much per block, their variance grows back (tracking)
-# A remembered echo path (audio/echo_memory.py) is on trial for the first REMEMBERED_TRIAL_BLOCKS
-# of the robot's voice: an output louder than the mic there (the path-change rule) says it is
-# another room's, and the filter starts new.
+# What the pair learned, remembered across a restart (audio/echo_memory.py), is on trial for the
+# first REMEMBERED_TRIAL_BLOCKS of the robot's voice: an output louder than the mic there (the
+# path-change rule) says it is another room's, and the pair starts new.
 REMEMBERED_TRIAL_BLOCKS = 300
+REMEMBERED_CHECK_BLOCKS = 50  # ... and after this many, checked against the echo it left when kept:
+REMEMBERED_WORSE_DB = 6.0  # this much more left (median) says the room changed: it relearns the room
 REMEMBER_ECHO_LEFT_DB = -10.0  # a path is worth remembering once it leaves the echo this far down
 ERROR_SMOOTHING = 0.8  # Kalman: error power per bin (what the echo model does not explain): old weight
 
@@ -89,6 +91,19 @@ class LinearEchoStats:
     double_talk_blocks: int = 0  # blocks judged double talk: slow background, no copy to the output
     path_changes: int = 0  # output louder than the mic (the echo path changed): learning restarted
     remembered_dropped: int = 0  # a remembered echo path that did not fit this room: started new
+    remembered_relearned: int = 0  # one whose room changed (the body's path held): relearning the room
+
+
+@dataclass(frozen=True)
+class LearnedEcho:
+    """What the canceller and its residual suppressor learned of the room: enough to start a
+    later pair where this one is (audio/echo_memory.py keeps it across restarts)."""
+
+    coefficients: ComplexArray  # the output filter, partitions x bins
+    variances: FloatArray  # how sure each coefficient is, partitions x bins
+    echo_left_db: float  # output vs mic in single talk (-ERLE)
+    residual_db: FloatArray  # the suppressor's per-band shares of the echo estimate...
+    coupling_db: FloatArray  # ... and of the reference's envelope
 
 
 class LinearEchoCanceller:
@@ -129,6 +144,8 @@ class LinearEchoCanceller:
         self._foreground_error = 0.0
         self._constrain_next = 0  # one partition per block is made causal again (round robin)
         self._trial_blocks = 0  # blocks of the robot's voice a remembered path is still on trial for
+        self._trial_ratios: list[float] | None = None  # output vs mic (dB) in the trial's first blocks
+        self._remembered_left_db = 0.0  # the echo the remembered state left
         self.echo_spectrum: ComplexArray = np.zeros(bins, dtype=np.complex128)  # of the last block
         self.stats = LinearEchoStats()
 
@@ -143,30 +160,31 @@ class LinearEchoCanceller:
         """(partitions, bins) of an echo path this canceller can start from."""
         return (self.partitions, self.block + 1)
 
-    def echo_path(self) -> ComplexArray | None:
-        """The echo path in use (partitions x bins), once it cancels REMEMBER_ECHO_LEFT_DB or
-        more in single talk; None before (nothing worth starting a later canceller from)."""
-        if self.echo_left_db > REMEMBER_ECHO_LEFT_DB or self._trial_blocks > 0:
-            return None
-        path: ComplexArray = self._foreground.copy()
-        return path
+    @property
+    def worth_remembering(self) -> bool:
+        """It cancels REMEMBER_ECHO_LEFT_DB or more in single talk, and is not on trial."""
+        return self.echo_left_db <= REMEMBER_ECHO_LEFT_DB and self._trial_blocks == 0
 
-    def start_from(self, path: ComplexArray) -> None:
-        """Start from an echo path learned before (`echo_path` of a canceller of this shape): the
-        echo is cancelled from the first block instead of after seconds of learning. It learns on
-        as fast as a new filter (its variances as new): the same robot in another room keeps the
-        path through its body and relearns the room's tail as if it had started new (held-out
-        rooms: a surer start, 0.3 of the variance, cancelled the same room better and the
-        other room's tail worse than starting new)."""
-        if path.shape != self.coefficients_shape:
-            raise ValueError(f"echo path shape {path.shape}, this canceller's is {self.coefficients_shape}")
-        if not np.all(np.isfinite(path)):
+    def learned(self) -> tuple[ComplexArray, FloatArray, float]:
+        """The output filter's coefficients and variances (copies), and the echo it leaves."""
+        return self._foreground.copy(), self._foreground_uncertainty.copy(), self.echo_left_db
+
+    def start_from(self, coefficients: ComplexArray, variances: FloatArray, echo_left_db: float) -> None:
+        """Start where a canceller of this shape was (`learned`): the echo is cancelled from the
+        first block instead of after seconds of learning, and the suppressor can trust it. On
+        trial for its first REMEMBERED_TRIAL_BLOCKS of the robot's voice."""
+        shape = self.coefficients_shape
+        if coefficients.shape != shape or variances.shape != shape:
+            raise ValueError(f"echo path of shape {coefficients.shape}, this canceller's is {shape}")
+        if not (np.all(np.isfinite(coefficients)) and np.all(np.isfinite(variances))):
             raise ValueError("echo path has values that are not finite")
-        self._foreground = path.astype(np.complex128, copy=True)
+        self._foreground = coefficients.astype(np.complex128, copy=True)
         self._background = self._foreground.copy()
-        self._uncertainty[:] = INITIAL_UNCERTAINTY
+        self._uncertainty = variances.astype(np.float64, copy=True)
         self._foreground_uncertainty = self._uncertainty.copy()
+        self.echo_left_db = self._remembered_left_db = echo_left_db
         self._trial_blocks = REMEMBERED_TRIAL_BLOCKS
+        self._trial_ratios = []
 
     def process(self, mic: FloatArray, reference: FloatArray) -> FloatArray:
         """`mic` minus the echo of `reference` (both one block, full scale 1.0) played meanwhile."""
@@ -247,10 +265,7 @@ class LinearEchoCanceller:
             # The echo path changed (the robot moved, a stamp shifted within tolerance): as at
             # the start, how much echo is left is unknown (so nothing counts as double talk
             # yet) and the background learns as if new; a converged one would take seconds.
-            self.stats.path_changes += 1
-            self._louder_run = 0
-            self.echo_left_db = 0.0
-            np.maximum(self._uncertainty, INITIAL_UNCERTAINTY, out=self._uncertainty)
+            self._restart_learning()
             if self._trial_blocks > 0:  # a remembered path of another room: worse than none
                 self.stats.remembered_dropped += 1
                 self._trial_blocks = 0
@@ -258,7 +273,8 @@ class LinearEchoCanceller:
                 self._background = np.zeros_like(self._background)
                 self._foreground_uncertainty = self._uncertainty.copy()
                 self._error_power[:] = 0.0  # what the wrong path left: it would slow the new start
-            self._hold = 0
+        elif self._trial_ratios is not None:
+            self._check_remembered(ratio)
         # A new filter's output jumps with each syllable it has not learned; its variances say
         # so. Taken for double talk, that froze it at a few dB of ERLE for seconds.
         unexplained = self._error_energy > self._uncertain_smoothed
@@ -271,6 +287,29 @@ class LinearEchoCanceller:
             return True
         self.echo_left_db += self._up_db if ratio > self.echo_left_db else -ECHO_LEFT_STEP_DB
         return False
+
+    def _restart_learning(self) -> None:
+        self.stats.path_changes += 1
+        self._louder_run = 0
+        self.echo_left_db = 0.0
+        np.maximum(self._uncertainty, INITIAL_UNCERTAINTY, out=self._uncertainty)
+        self._hold = 0
+
+    def _check_remembered(self, ratio: float) -> None:
+        """A remembered state that cancels the body's path but not the room's tail (the robot was
+        moved) leaves its output well above the echo it remembers leaving, yet under the mic. Sure
+        of itself, it took that residual for double talk and did not learn it away (held-out rooms:
+        sentences over the first reply went unheard). The median of the first
+        REMEMBERED_CHECK_BLOCKS says which (a user talking meanwhile moves it less than a room)."""
+        assert self._trial_ratios is not None
+        self._trial_ratios.append(ratio)
+        if len(self._trial_ratios) < REMEMBERED_CHECK_BLOCKS:
+            return
+        if float(np.median(self._trial_ratios)) > self._remembered_left_db + REMEMBERED_WORSE_DB:
+            self.stats.remembered_relearned += 1
+            self._restart_learning()  # keeps the coefficients: the path through the body holds
+            self._foreground_uncertainty = self._uncertainty.copy()
+        self._trial_ratios = None
 
     def _compare(self, foreground: FloatArray, background: FloatArray, copy: bool) -> None:
         a = COMPARE_SMOOTHING
@@ -334,6 +373,12 @@ class ResidualEchoSuppressor:
         self._envelope = np.zeros(bins)  # reference power per bin, held with the tail's decay
         self._residual = np.zeros(bins)
         self.last_gain: FloatArray = np.ones(bins)
+
+    def start_from(self, residual_db: FloatArray, coupling_db: FloatArray) -> None:
+        """Start with what a suppressor learned before (per band), past its warm-up."""
+        self.residual_db = residual_db.astype(np.float64, copy=True)
+        self.coupling_db = coupling_db.astype(np.float64, copy=True)
+        self._active_blocks = COUPLING_WARMUP_BLOCKS
 
     def relearn(self) -> None:
         """The echo path changed: what was learned of the residual no longer holds."""
@@ -460,11 +505,28 @@ class LinearAec:
         self._span_frames = partitions  # echo of a frame can arrive this many frames later
         self._quiet_frames = partitions  # frames since the reference was last audible
 
-    def echo_path(self) -> ComplexArray | None:
-        return self.canceller.echo_path()
+    def learned(self) -> LearnedEcho | None:
+        """What the pair learned, once worth remembering; None before."""
+        if not self.canceller.worth_remembering:
+            return None
+        coefficients, variances, echo_left_db = self.canceller.learned()
+        suppressor = self.suppressor
+        return LearnedEcho(
+            coefficients,
+            variances,
+            echo_left_db,
+            suppressor.residual_db.copy() if suppressor else np.full(RESIDUAL_BANDS, RESIDUAL_INITIAL_DB),
+            suppressor.coupling_db.copy() if suppressor else np.full(RESIDUAL_BANDS, COUPLING_INITIAL_DB),
+        )
 
-    def start_from(self, path: ComplexArray) -> None:
-        self.canceller.start_from(path)
+    def start_from(self, learned: LearnedEcho) -> None:
+        """Start where a pair of this shape was (raises ValueError if it does not fit)."""
+        bands = (RESIDUAL_BANDS,)
+        if learned.residual_db.shape != bands or learned.coupling_db.shape != bands:
+            raise ValueError(f"suppressor state of {learned.residual_db.shape} bands, expected {bands}")
+        self.canceller.start_from(learned.coefficients, learned.variances, learned.echo_left_db)
+        if self.suppressor is not None:
+            self.suppressor.start_from(learned.residual_db, learned.coupling_db)
 
     def process(self, mic: Int16Array, reference: Int16Array) -> Int16Array:
         ref = to_float(reference)

@@ -134,6 +134,7 @@ class EchoSuppressorNode(Node):
                 f"aec_frames={stats.aec_frames} unreferenced={stats.aec_frames_unreferenced} "
                 f"guard_muted={stats.guard_frames_muted} double_talk={stats.double_talk_frames} "
                 f"path_changes={stats.path_changes} remembered_dropped={stats.remembered_dropped} "
+                f"remembered_relearned={stats.remembered_relearned} "
                 f"mic_resyncs={stats.mic_resyncs} "
                 f"reference_restarts={stats.reference_restarts} "
                 f"late_reference_samples={stats.reference_samples_late}"

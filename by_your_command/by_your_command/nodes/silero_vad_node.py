@@ -23,6 +23,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -31,6 +32,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 
+from by_your_command.audio import echo_memory
 from by_your_command.local_speech.speaker import Speaker, SpeakerConfig, SpeechError
 from by_your_command.nodes._audio_msgs import int16_field, make_audio_chunk, pcm_of
 from by_your_command.nodes._delivery import DeliveryCheck
@@ -149,11 +151,18 @@ class SileroVadNode(Node):
         self._stops_heard: deque[Detection | Exception] = deque()
         self._spans: deque[tuple[int, int | None]] = deque(maxlen=SPANS_KEPT)  # (utterance id, end ns)
         self._span_samples = 0
+        self._stop_memory: Path | None = None
+        self._stop_was_cancelling = False
         if not config.enabled:
             self.get_logger().warning("safety stop OFF (stop_spotter: false): a spoken 'stop' is not heard")
             return None
         cancel = self.config.stop_cancels_echo
         spotter = StopSpotter(config, cancel_echo=cancel)
+        if spotter.echo_controller is not None:
+            name = f"{self.get_fully_qualified_name()}/stop_spotter"
+            self._stop_memory = echo_memory.memory_file(config.echo_memory, name)
+        if self._stop_memory is not None:
+            self._log_echo_memory(echo_memory.restore(spotter.echo_controller, self._stop_memory))
         topic = self.config.stop_topic
         if topic != self.config.input_topic:
             # Its own input (aec mode: the raw mic beside audio_filtered): the echo_suppressor's
@@ -173,6 +182,25 @@ class SileroVadNode(Node):
             f"reply {config.reply_text!r}"
         )
         return SpotterWorker(spotter, self._stop_heard, self._stop_heard)
+
+    def _remember_stop_echo(self, final: bool = False) -> None:
+        """Keep what the spotter's canceller learned when a reply it cancelled is over (and at
+        shutdown): the next start hears a stop over its first reply (audio/echo_memory.py)."""
+        if self._safety is None or self._stop_memory is None:
+            return
+        spotter = self._safety.spotter
+        cancelling = spotter.cancelling
+        if spotter.echo_controller is not None and (final or (self._stop_was_cancelling and not cancelling)):
+            outcome = echo_memory.keep(spotter.echo_controller, self._stop_memory)
+            if outcome is not None and not outcome.ok:
+                self._log_echo_memory(outcome)
+        self._stop_was_cancelling = cancelling
+
+    def _log_echo_memory(self, outcome: echo_memory.Outcome) -> None:
+        if outcome.ok:
+            self.get_logger().info(f"safety stop: {outcome.message}")
+        else:
+            self.get_logger().warning(f"safety stop: {outcome.message}", throttle_duration_sec=60.0)
 
     def _synthesize_stop_voice(self, text: str) -> tuple[bytes, int] | None:
         if not text:
@@ -490,6 +518,7 @@ class SileroVadNode(Node):
             if self.detector.in_utterance:
                 self.get_logger().warning("audio stopped mid-utterance: closing the utterance")
             self._stop_detector()
+        self._remember_stop_echo()
         if now - self._last_report >= STATS_PERIOD_S:
             self._last_report = now
             self._report()
@@ -553,6 +582,7 @@ class SileroVadNode(Node):
             self._wake_worker.close()
         if self._safety is not None:
             self._safety.close()
+            self._remember_stop_echo(final=True)
         super().destroy_node()
 
 

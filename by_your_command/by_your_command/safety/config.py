@@ -71,8 +71,18 @@ class StopConfig:
             "help": "echo_gate mode: cancel the robot's voice (aec engine, audio_played) before spotting"
         },
     )
+    echo_memory: str = field(
+        default="auto",
+        metadata={
+            "help": "file that keeps what the spotter's echo canceller learned across restarts, so a "
+            "stop over the first reply after a start is heard: auto ($XDG_STATE_HOME/by_your_command/"
+            "echo_path/<node>.stop_spotter.npz), none, or a path"
+        },
+    )
 
     def __post_init__(self) -> None:
+        if not self.echo_memory.strip():
+            raise ValueError("stop_echo_memory must be auto, none or a file path, got an empty string")
         if self.language not in DEFAULT_STOP_PHRASES:
             raise ValueError(
                 f"stop_language {self.language!r} is not supported; known languages: {known_languages()}"

@@ -153,6 +153,12 @@ class StopSpotter:
     def cancelling(self) -> bool:
         return self._cancelling
 
+    @property
+    def echo_controller(self) -> EchoController | None:
+        """The canceller of the robot's voice (None when not cancelling it): what it learned
+        is kept across restarts by the node (audio/echo_memory.py)."""
+        return self._echo
+
     def reference(self, pcm: Int16Array, sample_rate: int, channels: int, start_ns: int) -> None:
         """A block the player played, stamped with its play time."""
         mono = to_mono(pcm, channels)

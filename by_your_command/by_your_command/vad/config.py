@@ -150,6 +150,14 @@ class VadConfig:
             "under echo_gate, or when stop_input_topic is its own"
         },
     )
+    stop_echo_memory: str = field(
+        default=StopConfig.echo_memory,
+        metadata={
+            "help": "what the spotter's echo canceller learned, kept across restarts (a stop over the "
+            "first reply after a start is heard): auto ($XDG_STATE_HOME/by_your_command/echo_path/"
+            "<node>.stop_spotter.npz), none, or a path"
+        },
+    )
     stop_input_topic: str = field(
         default="",
         metadata={
@@ -208,6 +216,7 @@ class VadConfig:
             max_other_words=self.stop_max_other_words,
             own_voice_window_ms=self.stop_own_voice_window_ms,
             cancel_echo=self.stop_cancel_echo,
+            echo_memory=self.stop_echo_memory,
         )
 
     @property

@@ -86,6 +86,29 @@ def test_another_rooms_path_is_dropped_and_learning_starts_new(remembered: Path,
     assert energy_db(mic[later]) - energy_db(out[later]) > energy_db(mic[later]) - energy_db(new[later]) - 3.0
 
 
+def test_a_moved_robot_keeps_its_bodys_path_and_relearns_the_room(
+    remembered: Path, reply: Int16Array
+) -> None:
+    # The same direct path, another reverberant tail: the output stays under the mic (not
+    # dropped), but leaves far more than the echo remembered; sure of itself, the canceller took
+    # that for double talk and kept the wrong tail. Checked in its trial, it relearns the room.
+    moved = Room(delay_ms=120).echo(reply, RATE, seed=3)  # ROOM's direct path, another tail
+    echo = EchoController(CONFIG)
+    assert echo_memory.restore(echo, remembered).ok
+    out = run(echo, reply, moved)
+    assert (echo.stats.remembered_relearned, echo.stats.remembered_dropped) == (1, 0)
+    new = run(EchoController(CONFIG), reply, moved)
+    later = slice(4 * RATE, 8 * RATE)
+    assert (
+        energy_db(moved[later]) - energy_db(out[later])
+        > energy_db(moved[later]) - energy_db(new[later]) - 3.0
+    )
+    same = EchoController(CONFIG)
+    assert echo_memory.restore(same, remembered).ok
+    run(same, reply, ROOM.echo(reply, RATE))
+    assert (same.stats.remembered_relearned, same.stats.remembered_dropped) == (0, 0)
+
+
 def test_nothing_is_kept_before_the_canceller_has_learned(tmp_path: Path) -> None:
     echo = EchoController(CONFIG)
     short = recorded_speech(0.5, RATE)
@@ -99,7 +122,7 @@ def test_a_directory_that_cannot_be_written_is_reported_not_raised(remembered: P
     assert echo_memory.restore(echo, remembered).ok
     learned = recorded_speech(8.0, RATE)
     run(echo, learned, ROOM.echo(learned, RATE))  # its trial over: worth keeping again
-    assert echo.echo_path() is not None
+    assert echo.learned_echo() is not None
     blocked = tmp_path / "a_file"
     blocked.write_text("")
     kept = echo_memory.keep(echo, blocked / "echo_path.npz")
@@ -123,6 +146,10 @@ def _good(**override: object) -> dict[str, object]:
         "format": np.int64(1),
         "sample_rate": np.int64(RATE),
         "coefficients": np.zeros(SHAPE, dtype=np.complex128),
+        "variances": np.full(SHAPE, 0.001),
+        "echo_left_db": np.float64(-20.0),
+        "residual_db": np.zeros(16),
+        "coupling_db": np.zeros(16),
     }
     arrays.update(override)
     return arrays
@@ -137,9 +164,8 @@ def _huge_header() -> bytes:
     member = header.getvalue() + b"\x00" * 16
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w") as archive:
-        for key, data in (("format", _npy(np.int64(1))), ("sample_rate", _npy(np.int64(RATE)))):
-            archive.writestr(f"{key}.npy", data)
-        archive.writestr("coefficients.npy", member)
+        for key, value in _good().items():
+            archive.writestr(f"{key}.npy", member if key == "coefficients" else _npy(value))
     return buffer.getvalue()
 
 
@@ -159,8 +185,12 @@ def _npy(value: object) -> bytes:
         (_npz(**_good(sample_rate=np.float64(16000.0))), "sample_rate is float64"),
         (_npz(**_good(coefficients=np.zeros((40, 161), dtype=np.complex128))), "another aec_filter_ms"),
         (_npz(**_good(coefficients=np.zeros(SHAPE, dtype=object))), "coefficients is object"),
-        (_npz(**_good(coefficients=np.full(SHAPE, np.nan, dtype=np.complex128))), "not finite"),
+        (_npz(**_good(coefficients=np.full(SHAPE, np.nan, dtype=np.complex128))), "coefficients has values"),
         (_npz(**_good(coefficients=np.full(SHAPE, 1e6, dtype=np.complex128))), "not an echo path"),
+        (_npz(**_good(variances=np.full(SHAPE, -1.0))), "variances outside"),
+        (_npz(**_good(echo_left_db=np.float64(np.inf))), "echo_left_db has values that are not finite"),
+        (_npz(**_good(coupling_db=np.full(16, 1e9))), "coupling_db outside"),
+        (_npz(**_good(residual_db=np.zeros(8))), "residual_db is float64 (8,)"),
         (_huge_header(), "coefficients is complex128 (10000000000, 100)"),
         (_npz(**_good())[:-200], "not an echo path file"),
     ],
@@ -174,6 +204,10 @@ def _npy(value: object) -> bytes:
         "pickled_objects",
         "nan",
         "absurd_gain",
+        "negative_variance",
+        "infinite_level",
+        "absurd_coupling",
+        "other_band_count",
         "huge_claimed_shape",
         "cut_short",
     ],
@@ -187,7 +221,7 @@ def test_a_file_that_is_no_usable_echo_path_is_refused_with_its_reason(
     outcome = echo_memory.restore(echo, file)
     assert not outcome.ok
     assert reason in outcome.message
-    assert echo.echo_path() is None  # started new: nothing of the file taken
+    assert echo.learned_echo() is None  # started new: nothing of the file taken
 
 
 def test_an_oversized_file_is_refused_unread(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -87,11 +88,11 @@ def wait_for_the_node(
 
 @contextmanager
 def the_robot_speaking(
-    ros_namespace: str,
+    ros_namespace: str, *params: str
 ) -> Iterator[tuple[Probe, Callable[[], None], Room, list[SafetyStop]]]:
-    """The VAD node in gate mode, up, told the robot speaks (its spotter cancels the robot's voice
-    itself): the probe, the node's liveness check, the room and the safety stops heard."""
-    command = node("silero_vad_node", ros_namespace, "input_topic:=audio", "echo_gate:=true")
+    """The VAD node in gate mode (and `params`), up, told the robot speaks (its spotter cancels the
+    robot's voice itself): the probe, the node's liveness check, the room and the safety stops heard."""
+    command = node("silero_vad_node", ros_namespace, "input_topic:=audio", "echo_gate:=true", *params)
     with probe_node(ros_namespace) as probe, running_process(command) as vad:
         check = alive(vad)
         states = probe.listen(String, "attention_state", LATCHED)
@@ -237,6 +238,29 @@ def test_a_stop_over_the_reply_is_decided_at_its_pause_not_after_the_echo(ros_na
         stamped = stops[0].word_end.sec * NS + stops[0].word_end.nanosec
         # In the word (its closing /p/ is weak: the stamp may be at its vowel), not in the echo.
         assert word_start < stamped <= word_start + len(word) * NS // RATE
+
+
+@pytest.mark.ros
+def test_a_restarted_node_hears_a_stop_early_in_its_first_reply(ros_namespace: str, tmp_path: Path) -> None:
+    # A new spotter's canceller needs seconds of the robot's voice: a stop 1 s into the first
+    # reply after a start was mostly missed. The node keeps what it learned when a reply is over
+    # (stop_echo_memory) and a restart starts from it.
+    kept = tmp_path / "stop_spotter.npz"
+    reply = at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", RATE), RATE), -16.0)
+    echo = at_level(EchoRoom().echo(reply, RATE), -22.0)
+    with the_robot_speaking(ros_namespace, f"stop_echo_memory:={kept}") as (probe, check, room, stops):
+        room.play(robot=reply, echo=echo, realtime=True, quiet_after_s=2.0)  # the reply, then quiet
+        spin_until(probe, check, kept.exists, timeout=10, what="what the spotter's canceller learned, kept")
+        assert not stops
+    with the_robot_speaking(ros_namespace, f"stop_echo_memory:={kept}") as (probe, check, room, stops):
+        word = at_level(trim_silence(espeak("stop", "en-us", RATE), RATE), -26.0)
+        word_at = RATE  # 1 s into the first reply since the start
+        cut = word_at + len(word) + RATE
+        user = np.zeros(cut, dtype=np.int16)
+        user[word_at : word_at + len(word)] = word
+        room.play(user=user, robot=reply[:cut], echo=echo[:cut], realtime=True, quiet_after_s=0.0)
+        spin_until(probe, check, lambda: stops, timeout=20, what="the stop 1 s into the first reply")
+        assert [s.phrase for s in stops] == ["stop"]
 
 
 @pytest.mark.ros
