@@ -35,6 +35,7 @@ were (`HELD_OUT_2`'s quiet-room misses were read once, 2026-11-29; nothing was c
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import shutil
@@ -56,6 +57,7 @@ from audio_io.synthetic_room import Room, at_level, trim_silence  # type: ignore
 from by_your_command.audio import echo_memory  # noqa: E402
 from by_your_command.audio.echo import EchoConfig, EchoController  # noqa: E402
 from by_your_command.audio.pcm import Int16Array, float_to_int16, read_wav, resample, to_mono  # noqa: E402
+from by_your_command.local_speech.speaker import Speaker, SpeakerConfig  # noqa: E402
 from by_your_command.safety.config import StopConfig  # noqa: E402
 from by_your_command.safety.spotter import StopSpotter  # noqa: E402
 
@@ -176,12 +178,20 @@ def compose(
     return float_to_int16(mic / 32768), played, user_s + USER_ROOM.delay_ms / 1000
 
 
+@functools.lru_cache(maxsize=1)
+def robot_voice_sample() -> Int16Array:
+    """What the VAD node primes its spotter with: its own "Stopping." (the robot's TTS voice)."""
+    pcm, rate = Speaker(SpeakerConfig()).say(StopConfig().reply_text)
+    return resample(np.frombuffer(pcm, dtype="<i2").astype(np.int16), rate, RATE)
+
+
 class Stream:
     """One robot listening for a while, on one continuous timeline (see the docstring)."""
 
     def __init__(self, mode: str, config: StopConfig) -> None:
         self.mode = mode
-        self.spotter = StopSpotter(config, cancel_echo=mode in ("gate", "aec"))
+        cancel = mode in ("gate", "aec")
+        self.spotter = StopSpotter(config, cancel_echo=cancel, voice_sample=robot_voice_sample())
         filtered = mode == "aec_filtered"
         self.suppressor = EchoController(EchoConfig(mode="aec")) if filtered else None
         self.clock = T0

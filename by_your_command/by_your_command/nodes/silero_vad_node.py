@@ -33,6 +33,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Bool, String
 
 from by_your_command.audio import echo_memory
+from by_your_command.audio.pcm import Int16Array, resample
 from by_your_command.local_speech.speaker import Speaker, SpeakerConfig, SpeechError
 from by_your_command.nodes._audio_msgs import int16_field, make_audio_chunk, pcm_of
 from by_your_command.nodes._delivery import DeliveryCheck
@@ -157,7 +158,8 @@ class SileroVadNode(Node):
             self.get_logger().warning("safety stop OFF (stop_spotter: false): a spoken 'stop' is not heard")
             return None
         cancel = self.config.stop_cancels_echo
-        spotter = StopSpotter(config, cancel_echo=cancel)
+        self._stop_voice = self._synthesize_stop_voice(config.reply_text)
+        spotter = StopSpotter(config, cancel_echo=cancel, voice_sample=self._voice_sample())
         if spotter.echo_controller is not None:
             name = f"{self.get_fully_qualified_name()}/stop_spotter"
             self._stop_memory = echo_memory.memory_file(config.echo_memory, name)
@@ -168,7 +170,6 @@ class SileroVadNode(Node):
             # Its own input (aec mode: the raw mic beside audio_filtered): the echo_suppressor's
             # residual suppression and echo muting took the user's stop with the robot's voice.
             self.create_subscription(AudioChunk, topic, self._spot, AUDIO_IN)
-        self._stop_voice = self._synthesize_stop_voice(config.reply_text)
         self.cmd_pub = self.create_publisher(String, "response_cmd", RELIABLE)
         self.interruption_pub = self.create_publisher(Interruption, "interruption_signal", RELIABLE)
         self.safety_pub = self.create_publisher(SafetyStop, "safety_stop", RELIABLE)
@@ -201,6 +202,13 @@ class SileroVadNode(Node):
             self.get_logger().info(f"safety stop: {outcome.message}")
         else:
             self.get_logger().warning(f"safety stop: {outcome.message}", throttle_duration_sec=60.0)
+
+    def _voice_sample(self) -> Int16Array | None:
+        """The robot's "Stopping." at 16 kHz, a sample of its voice for the spotter (none if silent)."""
+        if self._stop_voice is None:
+            return None
+        pcm_bytes, rate = self._stop_voice
+        return resample(np.frombuffer(pcm_bytes, dtype="<i2").astype(np.int16), rate, 16000)
 
     def _synthesize_stop_voice(self, text: str) -> tuple[bytes, int] | None:
         if not text:

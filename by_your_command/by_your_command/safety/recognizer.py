@@ -233,6 +233,14 @@ class StopRecognizer:
         self._held = []
         self._open = True
 
+    def prime(self, pcm: Int16Array) -> None:
+        """Decode `pcm` and forget its words. A streaming decoder's cepstral mean starts as a
+        prior and follows what it hears: after a sample of a voice it starts from that voice's
+        mean (the robot's first words, decoded with the prior, were heard stop-like)."""
+        self.start()
+        self.feed(pcm)
+        self.finish()
+
     def feed(self, pcm: Int16Array) -> None:
         if not self._open or not len(pcm):
             return

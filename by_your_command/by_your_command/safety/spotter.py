@@ -109,7 +109,10 @@ class Detection:
 
 
 class StopSpotter:
-    def __init__(self, config: StopConfig, cancel_echo: bool) -> None:
+    def __init__(self, config: StopConfig, cancel_echo: bool, voice_sample: Int16Array | None = None) -> None:
+        """`voice_sample`: the robot's voice (16 kHz) to prime the decoder of its played voice
+        with: new, that decoder heard the robot's first words after a start stop-like, and a
+        user's stop right after them was rejected as the robot's own."""
         self.config = config
         phrases = config.stop_phrases
         self.matcher = StopMatcher(phrases, config.max_other_words)
@@ -121,6 +124,8 @@ class StopSpotter:
         self._reference_recognizer = StopRecognizer(
             phrases, streaming=True, phrase_weight=REFERENCE_PHRASE_WEIGHT, accents=False
         )
+        if voice_sample is not None:
+            self._reference_recognizer.prime(voice_sample)
         self._keywords = KeywordSpotter(phrases, KWS_THRESHOLD)
 
         self._mic = LevelSegmenter(

@@ -32,20 +32,20 @@ ROBOT_REPLY = (
 )
 
 
-def espeak(text: str, voice: str, rate: int) -> Int16Array:
+def espeak(text: str, voice: str, rate: int, wpm: int = 160) -> Int16Array:
     """`text` spoken by espeak-ng (a required system package) with `voice`, at `rate`."""
-    return _espeak(text, voice, rate).copy()
+    return _espeak(text, voice, rate, wpm).copy()
 
 
 @functools.lru_cache(maxsize=8)
-def _espeak(text: str, voice: str, rate: int) -> Int16Array:
+def _espeak(text: str, voice: str, rate: int, wpm: int) -> Int16Array:
     binary = shutil.which("espeak-ng")
     if binary is None:
         raise RuntimeError("espeak-ng is missing: run scripts/bootstrap.sh")
     with tempfile.TemporaryDirectory() as tmp:
         wav = Path(tmp) / "speech.wav"
         subprocess.run(
-            [binary, "-v", voice, "-s", "160", "-w", str(wav), text], check=True, capture_output=True
+            [binary, "-v", voice, "-s", str(wpm), "-w", str(wav), text], check=True, capture_output=True
         )
         pcm, source_rate, channels = read_wav(wav)
     return resample(to_mono(pcm, channels), source_rate, rate)

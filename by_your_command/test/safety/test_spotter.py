@@ -12,7 +12,8 @@ import pytest
 from audio_io.synthetic_room import ROBOT_REPLY, Room, at_level, espeak, trim_silence
 
 from by_your_command.audio import echo_memory
-from by_your_command.audio.pcm import Int16Array
+from by_your_command.audio.pcm import Int16Array, resample
+from by_your_command.local_speech.speaker import Speaker, SpeakerConfig
 from by_your_command.safety.config import StopConfig
 from by_your_command.safety.recognizer import StopMatcher, StopRecognizer, with_accents
 from by_your_command.safety.segmenter import LevelSegmenter
@@ -374,3 +375,25 @@ def test_a_spotter_started_from_what_its_canceller_learned_hears_stops_early_in_
     print(f"stops 1 s into the first reply after a start, heard: {heard} of {len(stops)}")
     assert heard["remembered"] == len(stops)
     assert heard["new"] < len(stops) / 2
+
+
+@pytest.mark.unit
+def test_primed_with_the_robots_voice_its_first_words_are_not_taken_for_a_stop(
+    spotter_config: StopConfig,
+) -> None:
+    # A new spotter's decoder of the robot's played voice starts from a prior cepstral mean: it
+    # heard this voice's "Sure." stop-like, and a user's stop right after it was rejected as the
+    # robot's own (bench_safety_stop --first-reply). Primed with a sample of the robot's voice
+    # (the node's own "Stopping."), it starts from that voice's mean.
+    pcm, rate = Speaker(SpeakerConfig()).say(spotter_config.reply_text)
+    sample = resample(np.frombuffer(pcm, dtype="<i2").astype(np.int16), rate, RATE)
+    text = "Sure. I can see a red cup on the table next to a blue book and a small green plant."
+    reply = trim_silence(espeak(text, "en-gb-x-rp+f2", RATE, wpm=170), RATE)
+    marked = {}
+    for primed in (False, True):
+        spotter = StopSpotter(spotter_config, cancel_echo=False, voice_sample=sample if primed else None)
+        for k in range(0, len(reply) - BLOCK + 1, BLOCK):
+            spotter.reference(reply[k : k + BLOCK], RATE, 1, T0 + k * NS // RATE)
+        spotter.mic(np.zeros(BLOCK, dtype=np.int16), RATE, 1, T0 + len(reply) * NS // RATE + NS)  # it ended
+        marked[primed] = spotter.marks.covers(T0, T0 + NS)
+    assert marked == {False: True, True: False}
