@@ -25,7 +25,7 @@ import numpy as np
 
 from by_your_command.audio.echo import EchoController
 from by_your_command.audio.echo_linear import RESIDUAL_BANDS, LearnedEcho
-from by_your_command.audio.recording import ensure_private_dir
+from by_your_command.audio.recording import ensure_private_dir, state_dir
 
 FORMAT = 1
 MAX_FILE_BYTES = 16 * 1024 * 1024  # the longest filter (2 s at 48 kHz) takes 2.3 MB
@@ -38,9 +38,8 @@ DB_RANGE = (-200.0, 60.0)  # the learned levels (echo left, the suppressor's sha
 def default_file(node_name: str) -> Path:
     """$XDG_STATE_HOME/by_your_command/echo_path/<node's full name>.npz (~/.local/state/... when
     unset): one file per node, so two robots' nodes on one machine keep their own."""
-    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
     name = node_name.strip("/").replace("/", ".") or "echo"
-    return Path(state) / "by_your_command" / "echo_path" / f"{name}.npz"
+    return state_dir() / "echo_path" / f"{name}.npz"
 
 
 def memory_file(setting: str, node_name: str) -> Path | None:

@@ -19,10 +19,15 @@ from by_your_command.audio.pcm import Int16Array
 log = logging.getLogger(__name__)
 
 
-def default_recordings_dir() -> Path:
-    """$XDG_STATE_HOME/by_your_command/recordings (~/.local/state/... when unset): private, persistent."""
+def state_dir() -> Path:
+    """$XDG_STATE_HOME/by_your_command (~/.local/state/... when unset): what nodes keep across runs."""
     state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(state) / "by_your_command" / "recordings"
+    return Path(state) / "by_your_command"
+
+
+def default_recordings_dir() -> Path:
+    """$XDG_STATE_HOME/by_your_command/recordings: private, persistent."""
+    return state_dir() / "recordings"
 
 
 def ensure_private_dir(path: Path) -> Path:
