@@ -562,7 +562,8 @@ class SileroVadNode(Node):
         spotter = worker.spotter
         return (
             f" safety_stop: stops={self.safety_stops} heard={spotter.heard} own_voice={spotter.own_voice}"
-            f" residual_echo={spotter.residual_echo} repeated={spotter.repeated}"
+            f" residual_echo={spotter.residual_echo} near_misses={spotter.near_misses}"
+            f" repeated={spotter.repeated}"
             f" dropped={worker.dropped} errors={worker.errors} rejected_blocks={self.safety_rejected_blocks}"
         )
 

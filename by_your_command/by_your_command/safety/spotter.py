@@ -25,6 +25,7 @@ from by_your_command.audio.pcm import Int16Array, resample, to_mono
 from by_your_command.safety.config import StopConfig
 from by_your_command.safety.own_voice import OwnVoiceMarks
 from by_your_command.safety.recognizer import (
+    NEAR_MISSES,
     REFERENCE_PHRASE_WEIGHT,
     Heard,
     KeywordSpotter,
@@ -41,6 +42,7 @@ from by_your_command.safety.segmenter import (
     SegmentEvent,
     Started,
 )
+from by_your_command.vad.attention import words_of
 
 if TYPE_CHECKING:
     from by_your_command.audio.echo import Block, EchoController
@@ -75,6 +77,12 @@ REFERENCE_MAX_UTTERANCE_MS = 5000  # the robot's sentences: its stop-like words 
 # under a loud robot's echo at the mic must still be heard (residual echo heard "halt" early in a
 # reply stopped the robot in 1 of 130 chat lines over a reply: the safe way to be wrong).
 ECHO_REMOVED_DB = 15.0
+# A stop transcript this long is more than a stop phrase (the longest users' stops over a reply,
+# "stop stop", had 720-860 ms of voice; "stopping by the shop" 1080-1180 ms, bench_safety_stop):
+# it is decoded again without the stop phrases' bias, and a near miss heard there with no stop
+# word ("stopping i little") is chat. Over a reply the biased decoder heard that line "stop it
+# halt" in 5 of 23 voices; unbiased, 4 of them came out "stopping ...", no real stop did.
+NEAR_MISS_CHECK_NS = 900_000_000
 LEVELS_KEPT_NS = 4 * NS_PER_S  # mic and output levels remembered: longer than any stop utterance
 
 
@@ -121,6 +129,8 @@ class StopSpotter:
         # whole audio ("halt" heard "call", "freeze" "three"): the pause decodes it again.
         self._pause_recognizer = StopRecognizer(phrases, streaming=False)
         self._utterance: list[Int16Array] = []  # the open utterance's audio, for that decode
+        # A long stop's second opinion, without the stop phrases' bias (NEAR_MISS_CHECK_NS).
+        self._plain_recognizer = StopRecognizer(phrases, streaming=False, phrase_weight=1)
         self._reference_recognizer = StopRecognizer(
             phrases, streaming=True, phrase_weight=REFERENCE_PHRASE_WEIGHT, accents=False
         )
@@ -151,6 +161,7 @@ class StopSpotter:
         self.stops = 0
         self.own_voice = 0  # stops rejected as the robot's own voice
         self.residual_echo = 0  # keyphrase hits rejected as what the canceller left of the robot
+        self.near_misses = 0  # long stop transcripts heard, unbiased, as a word like a stop
         self.repeated = 0  # stops within the refractory window of the last one
         self.last_text = ""
 
@@ -282,7 +293,7 @@ class StopSpotter:
                 return None
             detection = Detection(heard.text, event.voice_start_ns, event.voice_end_ns)
             if self.matcher.is_stop(heard.text):
-                return detection
+                return None if voiced >= NEAR_MISS_CHECK_NS and self._near_miss(heard.text) else detection
             if (
                 keyword
                 and voiced <= KWS_MAX_VOICED_NS
@@ -318,6 +329,20 @@ class StopSpotter:
         self._decided = True
         self.last_text = said
         return Detection(said, pause.voice_start_ns, pause.voice_end_ns)
+
+    def _near_miss(self, heard: str) -> bool:
+        """The utterance decoded again without the stop phrases' bias holds a word like a stop
+        ("stopping", "stopwatch") and no stop word: it was chat."""
+        recognizer = self._plain_recognizer
+        recognizer.start()
+        for pcm in self._utterance:
+            recognizer.feed(pcm)
+        plain = words_of(recognizer.finish().text)
+        if not any(w in NEAR_MISSES for w in plain) or any(w in self.matcher.words for w in plain):
+            return False
+        self.near_misses += 1
+        log.info("stop heard (%r) rejected: unbiased, it was %r", heard, " ".join(plain))
+        return True
 
     def _mostly_echo(self, start_ns: int, end_ns: int) -> bool:
         """The echo canceller took ECHO_REMOVED_DB or more out of the mic over [start, end)."""
