@@ -28,6 +28,7 @@ class Turn:
     next_sequence: int = 0
     received_ms: float = 0.0  # user audio received (at its own rate)
     unvoiced_ms: float = 0.0  # of it, what the VAD did not judge speech (pre-roll, pauses)
+    pre_roll_ms: float | None = None  # of it, what came before the VAD's onset (None: no speech yet)
     last_chunk_at: float = 0.0
     frame_since: float = float("-inf")  # frames that arrived before this show an earlier question
     audio: bytearray = field(default_factory=bytearray)  # at the provider's input rate
@@ -56,6 +57,12 @@ class Turn:
         """Speech heard from the VAD's onset on (all of it, from a VAD that does not say)."""
         return max(0.0, self.received_ms - self.unvoiced_ms)
 
+    def audio_from_onset(self, lead_ms: float) -> bytes:
+        """The audio kept, from `lead_ms` before the VAD's onset on (all of it while no onset)."""
+        assert self.resampler is not None
+        skipped_ms = max(0.0, (self.pre_roll_ms or 0.0) - lead_ms)
+        return bytes(self.audio[2 * int(skipped_ms * self.resampler.to_rate / 1000) :])
+
     def add_audio(self, pcm: bytes) -> None:
         if len(self.audio) + len(pcm) > self.keep_limit_bytes:
             self.replayable = False
@@ -71,6 +78,9 @@ class Turn:
         self.unvoiced_ms = min(
             max(self.unvoiced_ms, 1000.0 * unvoiced_samples / sample_rate), self.received_ms
         )
+        if self.pre_roll_ms is None and self.unvoiced_ms < self.received_ms:
+            # the first chunk with speech: what is not speech is the pre-roll (and a pause after the onset)
+            self.pre_roll_ms = self.unvoiced_ms
         out = self.resampler.push(samples)
         if end:
             out = np.concatenate([out, self.resampler.flush()])

@@ -8,13 +8,15 @@ from __future__ import annotations
 
 import asyncio
 
+import numpy as np
 import pytest
+from audio_io.synthetic_room import ROBOT_REPLY, Room, at_level, espeak, trim_silence
 from fake_port import playing, running_agent, speak
 from fake_provider import FakeFactory, spoken_reply, tone
 from virtual_time import run_virtual
 
 from by_your_command.agents.config import AgentConfig, AgentRole, EchoMode
-from by_your_command.agents.inputs import PlaybackStatus, SafetyStop, VoiceActivity
+from by_your_command.agents.inputs import PlaybackStatus, SafetyStop, UtteranceChunk, VoiceActivity
 from by_your_command.agents.interruptions import RECENT_CUTS
 from by_your_command.agents.overlap_words import LocalTranscriber, interrupting_words
 from by_your_command.local_speech.speaker import Speaker, SpeakerConfig
@@ -478,3 +480,49 @@ def test_the_local_transcriber_hears_words_in_speech_and_few_in_a_backchannel() 
     assert len(words("what about the dogs")) >= DUPLEX.min_barge_in_words
     assert len(words("okay")) < DUPLEX.min_barge_in_words
     assert len(words("uh huh")) < DUPLEX.min_barge_in_words
+
+
+@pytest.mark.parametrize(
+    ("said", "voice", "echo_at_s", "echo_dbfs"),
+    [("uh huh", "en-us", 2.0, -44.0), ("yeah", "en-us", 2.0, -38.0), ("yeah", "en-us+f3", 1.0, -44.0)],
+)
+def test_the_robots_echo_in_the_pre_roll_lends_a_backchannel_no_words(
+    said: str, voice: str, echo_at_s: float, echo_dbfs: float
+) -> None:
+    """The real recogniser on a backchannel whose 480 ms of pre-roll hold the robot's residual
+    echo (12-18 dB under the user): decoded with all of it, the echo lent these backchannels words
+    and the reply was cut; heard from just before the onset, it resumes."""
+    rate = 16000
+    echo = at_level(
+        Room().echo(at_level(trim_silence(espeak(ROBOT_REPLY, "en-gb", rate), rate), -18.0), rate), echo_dbfs
+    )
+    user = at_level(trim_silence(espeak(said, voice, rate), rate), -26.0)
+    pre_roll, tail = int(0.48 * rate), int(0.25 * rate)
+    start = int(echo_at_s * rate)
+    mic = echo[start : start + pre_roll + len(user) + tail].astype(np.float64)
+    mic[pre_roll : pre_roll + len(user)] += user
+    pcm = np.clip(mic, -32768, 32767).astype("<i2")
+    local = LocalTranscriber(DUPLEX.backchannels)
+
+    async def transcribe(audio: bytes, sample_rate: int) -> str:
+        return local(audio, sample_rate)
+
+    async def scenario() -> None:
+        factory = FakeFactory(spoken_reply("r1", seconds=4.0, chunk_s=0.2), spoken_reply("r2", seconds=0.2))
+        async with running_agent(DUPLEX, factory, transcriber=transcribe) as agent:
+            stream = await reply_playing(agent, 500)
+            agent.port.push(VoiceActivity(True))
+            chunk = rate // 10
+            for sequence, k in enumerate(range(0, len(pcm), chunk)):
+                last = k + chunk >= len(pcm)
+                unvoiced = min(k + chunk, pre_roll) + (tail if last else 0)  # as the VAD counts
+                agent.port.push(
+                    UtteranceChunk(pcm[k : k + chunk].tobytes(), rate, 2, sequence, last, unvoiced)
+                )
+                await asyncio.sleep(0.1)
+            await asyncio.sleep(2.0)
+            await agent.stop()
+        assert agent.port.of("interruption") == []
+        assert agent.port.of("resume") == [(stream, "false_barge_in")]
+
+    run_virtual(scenario())

@@ -21,7 +21,7 @@ from virtual_time import run_virtual
 
 from by_your_command.agents.config import AgentConfig, EchoMode
 from by_your_command.agents.inputs import VoiceActivity
-from by_your_command.agents.interruptions import RECENT_CUTS, Interruptions
+from by_your_command.agents.interruptions import RECENT_CUTS, TRANSCRIBED_PRE_ROLL_MS, Interruptions
 from by_your_command.agents.metrics import Counters
 from by_your_command.agents.reply_audio import ReplyAudio
 from by_your_command.agents.session import Interrupt, SendAudio
@@ -292,6 +292,27 @@ def test_the_held_speech_is_transcribed_once_long_enough_and_again_only_when_mor
     more(turn, 100)
     assert interruptions.hearing() is not None
     assert interruptions.judge(101.0, turn) is audio and audio.cut
+
+
+def test_the_transcriber_hears_the_speech_from_just_before_the_vads_onset() -> None:
+    # Over a reply the VAD's 480 ms of pre-roll hold the robot's residual echo, which the
+    # recogniser wrote as words: it hears from TRANSCRIBED_PRE_ROLL_MS before the onset on.
+    transcriber = Transcriber("uh-huh")
+    host = Host(config=WORDS_DECIDE, transcriber=transcriber)
+    turn = Turn(2, "voice", 100.5, 1 << 22, utterance_id=2)
+    turn.resampler = StreamResampler(16000, RATE)
+    interruptions, _ = paused(host, turn)
+    chunk = bytes(2 * 1600)  # 100 ms at 16 kHz, as the VAD sends it
+    for sequence in range(10):  # 0.48 s of pre-roll, then speech
+        pcm = turn.resample(chunk, 16000, False, unvoiced_samples=min(1600 * (sequence + 1), 7680))
+        turn.add_audio(pcm)
+    assert turn.pre_roll_ms == 480.0
+    hearing = interruptions.hearing()
+    assert hearing is not None
+    heard = asyncio.run(hearing())
+    skipped = 2 * int((480 - TRANSCRIBED_PRE_ROLL_MS) * RATE / 1000)
+    assert transcriber.given == [(len(turn.audio) - skipped, RATE)]
+    assert heard.covered_bytes == len(turn.audio)  # the transcript is of all the audio received
 
 
 def test_backchannels_heard_over_the_reply_do_not_interrupt() -> None:
