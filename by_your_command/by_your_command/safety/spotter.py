@@ -314,14 +314,10 @@ class StopSpotter:
         voiced = pause.voice_end_ns - pause.voice_start_ns
         if voiced < MIN_VOICED_NS:
             return None
-        recognizer = self._pause_recognizer
-        recognizer.start()
-        for pcm in self._utterance:
-            recognizer.feed(pcm)
         # The words begun before the pause: after it the decoder hears the residual echo.
         said = " ".join(
             word
-            for word, start_s, _ in recognizer.finish().words
+            for word, start_s, _ in self._decoded_whole(self._pause_recognizer).words
             if self._mic_start_ns + int(start_s * NS_PER_S) < pause.voice_end_ns
         )
         if not self.matcher.is_clean_stop(said):
@@ -333,16 +329,19 @@ class StopSpotter:
     def _near_miss(self, heard: str) -> bool:
         """The utterance decoded again without the stop phrases' bias holds a word like a stop
         ("stopping", "stopwatch") and no stop word: it was chat."""
-        recognizer = self._plain_recognizer
-        recognizer.start()
-        for pcm in self._utterance:
-            recognizer.feed(pcm)
-        plain = words_of(recognizer.finish().text)
+        plain = words_of(self._decoded_whole(self._plain_recognizer).text)
         if not any(w in NEAR_MISSES for w in plain) or any(w in self.matcher.words for w in plain):
             return False
         self.near_misses += 1
         log.info("stop heard (%r) rejected: unbiased, it was %r", heard, " ".join(plain))
         return True
+
+    def _decoded_whole(self, recognizer: StopRecognizer) -> Heard:
+        """The open utterance so far, decoded again by `recognizer` (not streaming)."""
+        recognizer.start()
+        for pcm in self._utterance:
+            recognizer.feed(pcm)
+        return recognizer.finish()
 
     def _mostly_echo(self, start_ns: int, end_ns: int) -> bool:
         """The echo canceller took ECHO_REMOVED_DB or more out of the mic over [start, end)."""
